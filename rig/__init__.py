@@ -1,0 +1,1 @@
+"""rig: hardware abstraction (cameras, actuators), recording and replay, experiments and the CLI."""
