@@ -1,0 +1,134 @@
+"""Triangle meshes of the twin: the tubes swept along the backbone, the backdrop and the clutter.
+
+All vertices in world mm. Tube surfaces are closed (watertight) swept cylinders,
+one per tube, so the step from the outer to the inner tube and both end caps
+are real geometry.
+"""
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from .robot import Backbone, Joints, Robot
+
+__all__ = ["tube_meshes", "swept_tube", "sample_backbone", "box_mesh", "cylinder_mesh", "plane_mesh"]
+
+
+def sample_backbone(backbone: Backbone, s_mm: np.ndarray) -> tuple:
+    """Positions (n, 3) mm and frames (n, 3, 3) at arc lengths ``s_mm``.
+
+    Arc lengths below the base continue the base straight back along its tangent
+    (the tube inside the actuation unit); positions between samples are
+    interpolated linearly (samples are <= 0.1 mm apart) and frames taken from the
+    nearest sample.
+    """
+    s = np.asarray(s_mm, dtype=np.float64)
+    sb = backbone.s_mm
+    p = np.stack([np.interp(s, sb, backbone.p_world_mm[:, k]) for k in range(3)], axis=1)
+    idx = np.clip(np.searchsorted(sb, s), 0, len(sb) - 1)
+    R = backbone.R_world_body[idx]
+    before = s < sb[0]
+    if np.any(before):
+        t0 = backbone.R_world_body[0][:, 2]
+        p[before] = backbone.p_world_mm[0] + (s[before] - sb[0])[:, None] * t0
+    return p, R
+
+
+def swept_tube(points_mm: np.ndarray, frames: np.ndarray, radius_mm: float, sides: int = 32) -> trimesh.Trimesh:
+    """A closed cylinder of ``radius_mm`` swept along ``points_mm`` with the given frames.
+
+    Parameters
+    ----------
+    points_mm : (n, 3) array
+        Centre line (world mm), n >= 2.
+    frames : (n, 3, 3) array
+        Frames whose columns 0 and 1 span each cross-section.
+    radius_mm : float
+    sides : int
+        Vertices per ring.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        Watertight, outward-facing mesh.
+    """
+    n = len(points_mm)
+    phi = np.linspace(0.0, 2.0 * np.pi, sides, endpoint=False)
+    ring = np.cos(phi)[None, :, None] * frames[:, None, :, 0] + np.sin(phi)[None, :, None] * frames[:, None, :, 1]
+    verts = (points_mm[:, None, :] + radius_mm * ring).reshape(-1, 3)
+    k = np.arange(n - 1)[:, None]
+    j = np.arange(sides)[None, :]
+    a = k * sides + j
+    b = k * sides + (j + 1) % sides
+    c = a + sides
+    d = b + sides
+    # (x, y, tangent) is right-handed, so (a, b, d) and (a, d, c) face outwards.
+    side_faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
+    start, end = n * sides, n * sides + 1
+    jj = np.arange(sides)
+    cap0 = np.stack([np.full(sides, start), (jj + 1) % sides, jj], axis=1)
+    last = (n - 1) * sides
+    cap1 = np.stack([np.full(sides, end), last + jj, last + (jj + 1) % sides], axis=1)
+    verts = np.concatenate([verts, points_mm[:1], points_mm[-1:]])
+    faces = np.concatenate([side_faces, cap0, cap1])
+    return trimesh.Trimesh(vertices=verts, faces=faces, process=False)
+
+
+def tube_meshes(
+    backbone: Backbone, robot: Robot, joints: Joints, step_mm: float = 0.5, hidden_mm: float = 8.0, sides: int = 32
+) -> list:
+    """One closed mesh per tube, swept along ``backbone``.
+
+    The outermost tube starts ``hidden_mm`` inside the actuation unit (s < 0) so
+    no gap shows at the pin vise; each inner tube starts 1 mm inside the tube
+    around it (where it is hidden) and ends at its own extension.
+
+    Returns
+    -------
+    list of (int, trimesh.Trimesh)
+        Tube index (into ``robot.tubes``) and its mesh (world mm); tubes with no
+        exposed length are left out.
+    """
+    out = []
+    prev_end = -hidden_mm
+    for i, (tube, ext) in enumerate(zip(robot.tubes, joints.extension_mm)):
+        start = -hidden_mm if i == 0 else max(-hidden_mm, min(prev_end, ext) - 1.0)
+        prev_end = ext
+        if ext - start <= 1e-6 or (i > 0 and ext <= joints.extension_mm[i - 1]):
+            continue
+        n = max(2, int(np.ceil((ext - start) / step_mm)) + 1)
+        s = np.linspace(start, ext, n)
+        p, R = sample_backbone(backbone, s)
+        out.append((i, swept_tube(p, R, tube.outer_radius_mm, sides=sides)))
+    return out
+
+
+def box_mesh(lo_mm, hi_mm) -> trimesh.Trimesh:
+    """Axis-aligned box between two world corners (mm)."""
+    lo = np.asarray(lo_mm, float)
+    hi = np.asarray(hi_mm, float)
+    m = trimesh.creation.box(extents=hi - lo)
+    m.apply_translation((lo + hi) / 2)
+    return m
+
+
+def cylinder_mesh(p0_mm, p1_mm, radius_mm: float, sections: int = 32) -> trimesh.Trimesh:
+    """Closed cylinder between two world points (mm)."""
+    return trimesh.creation.cylinder(radius=radius_mm, segment=np.array([p0_mm, p1_mm], float), sections=sections)
+
+
+def plane_mesh(center_mm, u_axis, v_axis, size_u_mm: float, size_v_mm: float) -> tuple:
+    """A rectangle (two triangles) with texture coordinates.
+
+    Returns
+    -------
+    vertices (4, 3) mm, faces (2, 3), uv (4, 2), normal (3,)
+    """
+    c = np.asarray(center_mm, float)
+    u = np.asarray(u_axis, float) / np.linalg.norm(u_axis)
+    v = np.asarray(v_axis, float) / np.linalg.norm(v_axis)
+    hu, hv = size_u_mm / 2, size_v_mm / 2
+    verts = np.array([c - hu * u - hv * v, c + hu * u - hv * v, c + hu * u + hv * v, c - hu * u + hv * v])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
+    return verts, faces, uv, np.cross(u, v)

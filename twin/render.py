@@ -1,0 +1,319 @@
+"""Offscreen rendering of the twin's set through the shared camera model.
+
+pyrender (the maintained ``pyrender2`` distribution) draws an ideal pinhole
+image on a canvas larger than the sensor; lens distortion is then applied by
+remapping every sensor pixel through :meth:`recon.camera.Camera.undistort_pixels`,
+so rendered images obey exactly the Brown-Conrady model that calibration
+estimates. One OpenGL context is created per :class:`SetRenderer` and reused
+for every frame.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .gl import select_platform
+
+select_platform()
+
+import cv2  # noqa: E402
+import pyrender  # noqa: E402
+import trimesh  # noqa: E402
+
+from recon.camera import Camera  # noqa: E402
+
+from . import mesh as meshes  # noqa: E402
+from .scene import Scene  # noqa: E402
+
+__all__ = ["SetRenderer", "View", "OPENGL_FROM_OPENCV"]
+
+# OpenCV camera axes (x right, y down, z forward) -> OpenGL's (x right, y up, z backward).
+OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+#: Segmentation colours of the tubes in the label pass (tube index -> RGB).
+_SEG_COLORS = [(255, 0, 0), (0, 255, 0), (0, 0, 255)]
+
+
+@dataclass(frozen=True, eq=False)
+class View:
+    """One rendered camera image before sensor noise.
+
+    Attributes
+    ----------
+    radiance : (H, W, 3) float32
+        Linear-ish RGB in [0, 1] as the lens delivers it (distorted).
+    labels : (H, W) uint8 or None
+        0 background, 1 + tube index where that tube is the visible robot surface
+        (a pixel counts when the tube covers at least half of it).
+    depth_mm : (H, W) float32 or None
+        Camera-frame z of the visible robot surface (mm), 0 elsewhere.
+    """
+
+    radiance: np.ndarray
+    labels: np.ndarray | None
+    depth_mm: np.ndarray | None
+
+
+def _texture(kind: str, c1, c2, seed: int, size: int = 256) -> np.ndarray:
+    """Backdrop texture (size, size, 3) uint8: plain, gradient or textured (seeded)."""
+    c1 = np.asarray(c1, float)
+    c2 = np.asarray(c2, float)
+    if kind == "plain":
+        img = np.broadcast_to(c1, (size, size, 3))
+    else:
+        t = np.linspace(0.0, 1.0, size)[:, None, None]
+        img = (1 - t) * c1 + t * c2
+        img = np.broadcast_to(img, (size, size, 3)).copy()
+        if kind == "textured":
+            rng = np.random.default_rng(seed)
+            noise = rng.normal(0.0, 1.0, (size, size)).astype(np.float32)
+            blotches = cv2.GaussianBlur(noise, (0, 0), 6.0)
+            blotches /= np.abs(blotches).max() + 1e-9
+            fine = cv2.GaussianBlur(noise, (0, 0), 0.8) * 0.15
+            img = img * (1.0 + 0.25 * blotches[..., None] + fine[..., None])
+    return (np.clip(img, 0, 1) * 255).astype(np.uint8)
+
+
+def _textured_plane(verts, faces, uv, normal, image: np.ndarray) -> pyrender.Mesh:
+    tex = pyrender.Texture(source=image, source_channels="RGB")
+    mat = pyrender.MetallicRoughnessMaterial(baseColorTexture=tex, metallicFactor=0.0, roughnessFactor=0.9)
+    prim = pyrender.Primitive(
+        positions=verts.astype(np.float32),
+        normals=np.tile(normal, (len(verts), 1)).astype(np.float32),
+        texcoord_0=uv.astype(np.float32),
+        indices=faces.astype(np.uint32),
+        material=mat,
+    )
+    return pyrender.Mesh([prim])
+
+
+def _solid(m: trimesh.Trimesh, color, metallic=0.0, roughness=0.6, smooth=False) -> pyrender.Mesh:
+    mat = pyrender.MetallicRoughnessMaterial(
+        baseColorFactor=list(color) + [1.0], metallicFactor=metallic, roughnessFactor=roughness
+    )
+    return pyrender.Mesh.from_trimesh(m, material=mat, smooth=smooth)
+
+
+class SetRenderer:
+    """Renders the scene's set (backdrop, clutter, lights) plus a robot, through a :class:`Camera`.
+
+    Parameters
+    ----------
+    scene : Scene
+        Supplies the set dressing, image size and the cameras (their K and
+        distortion fix the canvas margin and the distortion maps).
+    supersample : int, optional
+        Render at this many times the resolution and average down (anti-aliasing).
+        Default: 1 on EGL, whose multisampling anti-aliases edges, and 2 on OSMesa,
+        which ignores multisampling and would leave edges and ground truth
+        quantized to whole pixels.
+    """
+
+    def __init__(self, scene: Scene, supersample: int | None = None):
+        self.scene = scene
+        self.platform = os.environ.get("PYOPENGL_PLATFORM", "osmesa")
+        self.supersample = int(supersample or (2 if self.platform == "osmesa" else 1))
+        cams = list(scene.rig.cameras.values())
+        self.width, self.height = cams[0].width, cams[0].height
+        self._maps = {}
+        margin = 4
+        for cam in cams:
+            margin = max(margin, self._margin_needed(cam))
+        self.margin = margin
+        for cam in cams:
+            self._maps[cam.name] = self._distortion_maps(cam)
+        d = scene.dressing
+        self.pr_scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 1.0], ambient_light=[d.ambient] * 3)
+        self._add_set(scene)
+        self._cam_node = None
+        self._robot_nodes = []
+        self.canvas = (self.width + 2 * margin, self.height + 2 * margin)
+        ss = self.supersample
+        self._renderer = pyrender.OffscreenRenderer(self.canvas[0] * ss, self.canvas[1] * ss)
+
+    # ------------------------------------------------------------------ set-up
+    def _margin_needed(self, cam: Camera) -> int:
+        """Canvas margin (px) so that every sensor pixel's ideal position lies on the canvas."""
+        w, h = cam.width, cam.height
+        u = np.arange(w, dtype=float)
+        v = np.arange(h, dtype=float)
+        border = np.concatenate(
+            [
+                np.stack([u, np.zeros(w)], 1),
+                np.stack([u, np.full(w, h - 1.0)], 1),
+                np.stack([np.zeros(h), v], 1),
+                np.stack([np.full(h, w - 1.0), v], 1),
+            ]
+        )
+        ideal = cam.undistort_pixels(border)
+        over = max(-ideal[:, 0].min(), ideal[:, 0].max() - (w - 1), -ideal[:, 1].min(), ideal[:, 1].max() - (h - 1), 0)
+        return int(np.ceil(over)) + 3
+
+    def _distortion_maps(self, cam: Camera) -> tuple:
+        uu, vv = np.meshgrid(np.arange(cam.width, dtype=float), np.arange(cam.height, dtype=float))
+        ideal = cam.undistort_pixels(np.stack([uu.ravel(), vv.ravel()], 1)) + self.margin
+        mx = ideal[:, 0].reshape(cam.height, cam.width).astype(np.float32)
+        my = ideal[:, 1].reshape(cam.height, cam.width).astype(np.float32)
+        return cv2.convertMaps(mx, my, cv2.CV_16SC2)
+
+    def _add_set(self, scene: Scene) -> None:
+        d = scene.dressing
+        rng_seed = scene.seed
+        tex = _texture(d.backdrop, d.backdrop_color, d.backdrop_color2, rng_seed)
+        cx = float(np.mean([c.T_world_cam[0, 3] for c in scene.rig.cameras.values()]))
+        size = 600.0
+        floor = meshes.plane_mesh([cx, 0.0, d.floor_z_mm], [1, 0, 0], [0, 1, 0], size, size)
+        wall = meshes.plane_mesh([cx, d.wall_y_mm, 0.0], [1, 0, 0], [0, 0, 1], size, size)  # faces -y, the side camera
+        self.pr_scene.add(_textured_plane(*floor, tex))
+        self.pr_scene.add(_textured_plane(*wall, _texture(d.backdrop, d.backdrop_color, d.backdrop_color2, rng_seed + 1)))
+        T_base = scene.robot.T_world_base
+        if d.actuation_unit:
+            # The actuation unit sits behind the base along -insertion: a block carrying the
+            # distal pin vise (outer tube) with the proximal one (inner tube) further back.
+            def to_world(p_base):
+                return (T_base[:3, :3] @ np.asarray(p_base, float).T).T + T_base[:3, 3]
+
+            block = meshes.box_mesh([-14.0, -14.0, -95.0], [14.0, 14.0, -18.0])
+            block.apply_transform(T_base)
+            self.pr_scene.add(_solid(block, (0.22, 0.23, 0.25), metallic=0.3, roughness=0.5))
+            chuck = meshes.cylinder_mesh(to_world([0, 0, -18.0]), to_world([0, 0, -6.0]), 5.0)
+            nose = trimesh.creation.cone(radius=5.0, height=7.0, sections=32)
+            nose.apply_translation([0, 0, -6.0])
+            nose.apply_transform(T_base)
+            collar = meshes.cylinder_mesh(to_world([0, 0, -6.0]), to_world([0, 0, -0.6]), 1.6)
+            brass = (0.72, 0.58, 0.30)
+            self.pr_scene.add(_solid(chuck, brass, metallic=0.8, roughness=0.35, smooth=True))
+            self.pr_scene.add(_solid(collar, brass, metallic=0.8, roughness=0.35, smooth=True))
+        if d.mount_posts:
+            # Two posts of the camera mount, far from the robot's workspace.
+            for x, y in ((cx + 52.0, 40.0), (cx + 52.0, -40.0)):
+                post = meshes.cylinder_mesh([x, y, d.floor_z_mm], [x, y, d.floor_z_mm + 22.0], 4.0)
+                self.pr_scene.add(_solid(post, (0.35, 0.36, 0.38), metallic=0.5, roughness=0.4, smooth=True))
+        for light in d.lights:
+            if light.kind == "directional":
+                z = -np.asarray(light.direction, float)
+                z /= np.linalg.norm(z)
+                x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
+                x /= np.linalg.norm(x)
+                pose = np.eye(4)
+                pose[:3, :3] = np.stack([x, np.cross(z, x), z], 1)
+                self.pr_scene.add(pyrender.DirectionalLight(color=light.color, intensity=light.intensity), pose=pose)
+            else:
+                pose = np.eye(4)
+                pose[:3, 3] = light.position_mm
+                self.pr_scene.add(pyrender.PointLight(color=light.color, intensity=light.intensity), pose=pose)
+
+    # ------------------------------------------------------------------ robot
+    def set_robot(self, tube_meshes: list | None) -> None:
+        """Replace the robot by ``tube_meshes`` (``[(tube index, trimesh), ...]``) or remove it (None).
+
+        Each tube gets two nodes: its Nitinol look for the camera image and a flat
+        label colour for the ground-truth pass (only one of them visible at a time).
+        """
+        for node, truth_node, _ in self._robot_nodes:
+            self.pr_scene.remove_node(node)
+            self.pr_scene.remove_node(truth_node)
+        self._robot_nodes = []
+        if not tube_meshes:
+            return
+        if len(tube_meshes) > len(_SEG_COLORS):
+            raise ValueError(f"the label pass separates at most {len(_SEG_COLORS)} visible tubes, got {len(tube_meshes)}")
+        d = self.scene.dressing
+        look = pyrender.MetallicRoughnessMaterial(
+            baseColorFactor=list(d.robot_color) + [1.0], metallicFactor=d.robot_metallic, roughnessFactor=d.robot_roughness
+        )
+        for k, (idx, m) in enumerate(tube_meshes):
+            flat = pyrender.MetallicRoughnessMaterial(baseColorFactor=[c / 255 for c in _SEG_COLORS[k]] + [1.0])
+            node = self.pr_scene.add(pyrender.Mesh.from_trimesh(m, material=look, smooth=True))
+            truth = pyrender.Mesh.from_trimesh(m, material=flat, smooth=False)
+            truth.is_visible = False
+            truth_node = self.pr_scene.add(truth)
+            self._robot_nodes.append((node, truth_node, idx))
+
+    # ------------------------------------------------------------------ render
+    def _place_camera(self, camera: Camera) -> None:
+        K = camera.K
+        m = self.margin
+        ss = self.supersample
+        # pyrender's window coordinates put pixel centres at +0.5, OpenCV's at integers; a
+        # supersampled canvas scales window coordinates by ss.
+        pr_cam = pyrender.IntrinsicsCamera(
+            fx=K[0, 0] * ss, fy=K[1, 1] * ss, cx=(K[0, 2] + m + 0.5) * ss, cy=(K[1, 2] + m + 0.5) * ss,
+            znear=20.0, zfar=2000.0,
+        )
+        if self._cam_node is not None:
+            self.pr_scene.remove_node(self._cam_node)
+        self._cam_node = self.pr_scene.add(pr_cam, pose=camera.T_world_cam @ OPENGL_FROM_OPENCV)
+
+    def render(self, camera: Camera, with_truth: bool = True) -> View:
+        """Render the set (and robot, if set) through ``camera`` (its pose may be jittered).
+
+        Parameters
+        ----------
+        camera : Camera
+            Must have the name of one of the scene's cameras (selects the distortion maps).
+        with_truth : bool
+            Also render the robot label and depth pass.
+        """
+        if camera.name not in self._maps:
+            raise KeyError(f"renderer has no camera {camera.name!r}")
+        self._place_camera(camera)
+        m1, m2 = self._maps[camera.name]
+        color, _ = self._renderer.render(self.pr_scene)
+        color = self._downsample(color)
+        radiance = cv2.remap(color, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        radiance = radiance.astype(np.float32) * (1.0 / 255.0)
+        labels = depth = None
+        if with_truth and self._robot_nodes:
+            labels, depth = self._truth_pass(m1, m2)
+        return View(radiance=radiance, labels=labels, depth_mm=depth)
+
+    def _downsample(self, image: np.ndarray) -> np.ndarray:
+        """Average a supersampled canvas down to the canvas (area filter)."""
+        if self.supersample == 1:
+            return image
+        return cv2.resize(image, self.canvas, interpolation=cv2.INTER_AREA)
+
+    def _truth_pass(self, m1, m2) -> tuple:
+        """Robot labels and depth: the tubes alone, in flat label colours.
+
+        A flat (unlit) colour pass keeps the renderer's multisampling, so a label's
+        coverage is resolved below a pixel; pyrender's SEG pass is not multisampled
+        and would quantize the ground truth to whole pixels.
+        """
+        shown = [m for m in self.pr_scene.meshes if m.is_visible]
+        for m in shown:
+            m.is_visible = False
+        for _, truth_node, _ in self._robot_nodes:
+            truth_node.mesh.is_visible = True
+        try:
+            seg, z = self._renderer.render(self.pr_scene, flags=pyrender.RenderFlags.FLAT)
+        finally:
+            for _, truth_node, _ in self._robot_nodes:
+                truth_node.mesh.is_visible = False
+            for m in shown:
+                m.is_visible = True
+        seg = cv2.remap(self._downsample(seg), m1, m2, cv2.INTER_LINEAR)
+        labels = np.zeros(seg.shape[:2], np.uint8)
+        for k, (_, _, idx) in enumerate(self._robot_nodes):
+            ch = int(np.argmax(_SEG_COLORS[k]))
+            # A pixel belongs to a tube when the tube covers at least half of it.
+            labels[seg[..., ch] >= 128] = idx + 1
+        if self.supersample > 1:
+            z = cv2.resize(z, self.canvas, interpolation=cv2.INTER_NEAREST)
+        depth = cv2.remap(z.astype(np.float32), m1, m2, cv2.INTER_NEAREST)
+        return labels, depth
+
+    def close(self) -> None:
+        """Release the OpenGL context."""
+        if self._renderer is not None:
+            self._renderer.delete()
+            self._renderer = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

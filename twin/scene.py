@@ -1,0 +1,449 @@
+"""Scene files: the robot, the rig, the set, the noise and the joint sequence of a twin run.
+
+A scene is a TOML file (see ``scenes/paper.toml``, documented key by key). It is
+validated completely on load: an error names the file, the key and what is
+wrong, e.g. ``scenes/x.toml: robot.tubes[1].outer_diameter_mm: must be > 0,
+got -1``.
+"""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from recon.camera import Camera, look_at, rotation_matrix
+from recon.rigcal import RigCalibration
+
+from .robot import Joints, Robot, Tube
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+__all__ = ["Scene", "SceneError", "load_scene", "scene_from_dict", "NoiseModel", "SetDressing", "Light"]
+
+
+class SceneError(ValueError):
+    """A scene file that cannot be used; the message names file and key."""
+
+
+# ----------------------------------------------------------------------------- schema helpers
+class _Table:
+    """Typed, checked access to one TOML table; unknown keys are errors."""
+
+    def __init__(self, data, path: str, source: str):
+        if not isinstance(data, dict):
+            raise SceneError(f"{source}: {path or 'top level'}: must be a table, got {type(data).__name__}")
+        self.data = data
+        self.path = path
+        self.source = source
+        self.used: set = set()
+
+    def _key(self, key):
+        return f"{self.path}.{key}" if self.path else key
+
+    def fail(self, key, why):
+        raise SceneError(f"{self.source}: {self._key(key)}: {why}")
+
+    def get(self, key, default=None, kind=None, check=None, why=None):
+        self.used.add(key)
+        if key not in self.data:
+            if default is _REQUIRED:
+                self.fail(key, "missing (required)")
+            return default
+        value = self.data[key]
+        if kind is float:
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                self.fail(key, f"must be a number, got {value!r}")
+            value = float(value)
+        elif kind is int:
+            if isinstance(value, bool) or not isinstance(value, int):
+                self.fail(key, f"must be an integer, got {value!r}")
+        elif kind is str:
+            if not isinstance(value, str):
+                self.fail(key, f"must be a string, got {value!r}")
+        elif kind is bool:
+            if not isinstance(value, bool):
+                self.fail(key, f"must be true or false, got {value!r}")
+        elif isinstance(kind, tuple) and kind[0] == "vec":
+            n = kind[1]
+            if (
+                not isinstance(value, list)
+                or (n is not None and len(value) != n)
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+            ):
+                self.fail(key, f"must be a list of {n if n is not None else 'some'} numbers, got {value!r}")
+            value = [float(v) for v in value]
+        if check is not None and not check(value):
+            self.fail(key, f"{why}, got {value!r}")
+        return value
+
+    def table(self, key, required=False):
+        self.used.add(key)
+        if key not in self.data:
+            if required:
+                self.fail(key, "missing table (required)")
+            return _Table({}, self._key(key), self.source)
+        return _Table(self.data[key], self._key(key), self.source)
+
+    def tables(self, key):
+        self.used.add(key)
+        items = self.data.get(key, [])
+        if not isinstance(items, list):
+            self.fail(key, "must be an array of tables ([[...]])")
+        return [_Table(item, f"{self._key(key)}[{i}]", self.source) for i, item in enumerate(items)]
+
+    def done(self):
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            self.fail(unknown[0], "unknown key")
+
+
+_REQUIRED = object()
+_POS = (lambda v: v > 0, "must be > 0")
+_NONNEG = (lambda v: v >= 0, "must be >= 0")
+
+
+# ----------------------------------------------------------------------------- scene parts
+@dataclass(frozen=True)
+class NoiseModel:
+    """Per-frame image and pose disturbances (seeded, reproducible).
+
+    Attributes
+    ----------
+    lighting_drift : float
+        Amplitude of a slow gain drift over the sequence (relative).
+    lighting_period_frames : float
+        Period of the drift (frames).
+    flicker : float
+        Standard deviation of a per-frame gain change (relative).
+    offset_dn : float
+        Standard deviation of a per-frame offset (8-bit digital numbers).
+    gradient : float
+        Amplitude of a per-frame linear illumination ramp across the image (relative).
+    jitter_px : float
+        Standard deviation of the camera shift per frame, expressed as image motion (px).
+    jitter_rotation_deg : float
+        Standard deviation of the camera rotation about each of its axes per frame (deg).
+    photons_full_scale : float
+        Photo-electrons at 255 DN (sets Poisson shot noise); 0 disables it.
+    read_noise_dn : float
+        Gaussian read noise (DN).
+    blur_px : float
+        Gaussian blur sigma (px); 0 disables it.
+    """
+
+    lighting_drift: float = 0.0
+    lighting_period_frames: float = 40.0
+    flicker: float = 0.0
+    offset_dn: float = 0.0
+    gradient: float = 0.0
+    jitter_px: float = 0.0
+    jitter_rotation_deg: float = 0.0
+    photons_full_scale: float = 0.0
+    read_noise_dn: float = 0.0
+    blur_px: float = 0.0
+
+
+@dataclass(frozen=True)
+class Light:
+    """A directional light (world direction of travel) or a point light (world position, mm)."""
+
+    kind: str
+    intensity: float
+    direction: tuple = (0.0, 0.0, -1.0)
+    position_mm: tuple = (0.0, 0.0, 300.0)
+    color: tuple = (1.0, 1.0, 1.0)
+
+
+@dataclass(frozen=True)
+class SetDressing:
+    """What surrounds the robot: backdrop, clutter and lights."""
+
+    backdrop: str = "gradient"
+    backdrop_color: tuple = (0.80, 0.80, 0.78)
+    backdrop_color2: tuple = (0.55, 0.56, 0.60)
+    floor_z_mm: float = -60.0
+    wall_y_mm: float = 70.0
+    actuation_unit: bool = True
+    mount_posts: bool = True
+    ambient: float = 0.35
+    lights: tuple = ()
+    robot_color: tuple = (0.78, 0.78, 0.80)
+    robot_metallic: float = 0.6
+    robot_roughness: float = 0.35
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """A fully validated scene.
+
+    Attributes
+    ----------
+    name : str
+    source : str
+        File it came from (for messages).
+    seed : int
+        Seed of every random draw of the twin (noise, jitter, texture).
+    robot : Robot
+    model : str
+        Kinematic model, ``"bending"`` or ``"compliant"``.
+    rig : RigCalibration
+        The nominal (true, undisturbed) cameras.
+    color : str
+        ``"mono"`` (8-bit gray) or ``"rgb"``.
+    dressing : SetDressing
+    noise : NoiseModel
+    joints : list of Joints
+        One per robot frame.
+    background_frames : int
+        Background-only frames per camera (for the eigenbackground model).
+    frame_interval_s : float
+        Time between frames (s).
+    """
+
+    name: str
+    source: str
+    seed: int
+    robot: Robot
+    model: str
+    rig: RigCalibration
+    color: str
+    dressing: SetDressing
+    noise: NoiseModel
+    joints: list
+    background_frames: int
+    frame_interval_s: float
+
+    def with_frames(self, joints: list) -> "Scene":
+        """The same scene with another joint sequence (e.g. a prefix for quick tests)."""
+        from dataclasses import replace
+
+        return replace(self, joints=list(joints))
+
+
+# ----------------------------------------------------------------------------- parsing
+def _parse_tube(t: _Table) -> Tube:
+    kw = dict(
+        name=t.get("name", _REQUIRED, str),
+        outer_diameter_mm=t.get("outer_diameter_mm", _REQUIRED, float, *_POS),
+        inner_diameter_mm=t.get("inner_diameter_mm", _REQUIRED, float, *_NONNEG),
+        length_mm=t.get("length_mm", _REQUIRED, float, *_POS),
+        curved_length_mm=t.get("curved_length_mm", _REQUIRED, float, *_NONNEG),
+        precurvature_per_mm=t.get("precurvature_per_mm", _REQUIRED, float, *_NONNEG),
+        youngs_modulus_gpa=t.get("youngs_modulus_gpa", 60.0, float, *_POS),
+        poisson_ratio=t.get("poisson_ratio", 0.33, float, lambda v: -1 < v < 0.5, "must be in (-1, 0.5)"),
+    )
+    if kw["inner_diameter_mm"] >= kw["outer_diameter_mm"]:
+        t.fail("inner_diameter_mm", f"must be smaller than outer_diameter_mm={kw['outer_diameter_mm']}, got {kw['inner_diameter_mm']}")
+    if kw["curved_length_mm"] > kw["length_mm"]:
+        t.fail("curved_length_mm", f"must be <= length_mm={kw['length_mm']}, got {kw['curved_length_mm']}")
+    t.done()
+    return Tube(**kw)
+
+
+def _base_transform(position, insertion_axis, bend_axis) -> np.ndarray:
+    z = np.asarray(insertion_axis, float)
+    z /= np.linalg.norm(z)
+    x = np.asarray(bend_axis, float)
+    x = x - np.dot(x, z) * z
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, y, z], axis=1)
+    T[:3, 3] = position
+    return T
+
+
+def _parse_robot(r: _Table, source: str) -> tuple:
+    model = r.get("model", "bending", str, lambda v: v in ("bending", "compliant"), 'must be "bending" or "compliant"')
+    position = r.get("base_position_mm", [0.0, 0.0, 0.0], ("vec", 3))
+    ins = r.get("insertion_axis", [1.0, 0.0, 0.0], ("vec", 3), lambda v: np.linalg.norm(v) > 0, "must be non-zero")
+    bend = r.get("bend_axis", [0.0, 1.0, 0.0], ("vec", 3), lambda v: np.linalg.norm(v) > 0, "must be non-zero")
+    if np.linalg.norm(np.cross(ins, bend)) < 1e-6:
+        r.fail("bend_axis", "must not be parallel to insertion_axis")
+    tube_tables = r.tables("tubes")
+    if not tube_tables:
+        r.fail("tubes", "at least one [[robot.tubes]] is required")
+    tubes = [_parse_tube(t) for t in tube_tables]
+    for i in range(1, len(tubes)):
+        if tubes[i].outer_diameter_mm > tubes[i - 1].inner_diameter_mm:
+            tube_tables[i].fail(
+                "outer_diameter_mm",
+                f"tube {tubes[i].name!r} ({tubes[i].outer_diameter_mm} mm) is wider than the bore of "
+                f"tube {tubes[i - 1].name!r} ({tubes[i - 1].inner_diameter_mm} mm) it sits in",
+            )
+    r.done()
+    return Robot(tubes=tuple(tubes), T_world_base=_base_transform(position, ins, bend)), model, np.asarray(position), np.asarray(ins)
+
+
+def _parse_rig(g: _Table, width: int, height: int, base, axis) -> RigCalibration:
+    distance = g.get("distance_mm", 300.0, float, *_POS)
+    focal = g.get("focal_length_mm", 12.0, float, *_POS)
+    pixel = g.get("pixel_size_um", 4.65, float, *_POS)
+    target = np.asarray(g.get("target_mm", [45.0, 0.0, 0.0], ("vec", 3)))
+    dist_default = g.get("distortion", [0.0] * 5, ("vec", 5))
+    f_px = focal / (pixel * 1e-3)
+    # Nominal orthogonal mounts: the top camera looks down (-z) with image-down = world -y;
+    # the side camera looks along +y with image-down = world -z (so world up is image up).
+    nominal = {
+        "side": (target + np.array([0.0, -distance, 0.0]), np.array([0.0, 0.0, -1.0])),
+        "top": (target + np.array([0.0, 0.0, distance]), np.array([0.0, -1.0, 0.0])),
+    }
+    cams = {}
+    for name, (eye, down) in nominal.items():
+        c = g.table(name)
+        rot = c.get("rotation_deg", [0.0, 0.0, 0.0], ("vec", 3))
+        off = c.get("offset_mm", [0.0, 0.0, 0.0], ("vec", 3))
+        pp = c.get("principal_offset_px", [0.0, 0.0], ("vec", 2))
+        dist = c.get("distortion", dist_default, ("vec", 5))
+        f_scale = c.get("focal_scale", 1.0, float, *_POS)
+        c.done()
+        T = look_at(eye, target, down)
+        # Mount deviations are small rotations about the camera's own axes, then a shift (mm) in
+        # the camera frame: T_cam'_world = D @ T_cam_world.
+        D = np.eye(4)
+        R = np.eye(3)
+        for ax, ang in zip(np.eye(3), rot):
+            R = rotation_matrix(ax, np.deg2rad(ang)) @ R
+        D[:3, :3] = R
+        D[:3, 3] = -np.asarray(off)
+        K = np.array(
+            [[f_px * f_scale, 0.0, (width - 1) / 2 + pp[0]], [0.0, f_px * f_scale, (height - 1) / 2 + pp[1]], [0, 0, 1.0]]
+        )
+        cams[name] = Camera(name=name, width=width, height=height, K=K, dist=np.asarray(dist), T_cam_world=D @ T)
+    g.done()
+    return RigCalibration(cameras=cams, base_point_world_mm=base, insertion_axis_world=axis)
+
+
+def _parse_dressing(d: _Table, lights: list, ambient: float) -> SetDressing:
+    kinds = ("plain", "gradient", "textured")
+    dressing = SetDressing(
+        backdrop=d.get("kind", "gradient", str, lambda v: v in kinds, f"must be one of {', '.join(kinds)}"),
+        backdrop_color=tuple(d.get("color", [0.80, 0.80, 0.78], ("vec", 3))),
+        backdrop_color2=tuple(d.get("color2", [0.55, 0.56, 0.60], ("vec", 3))),
+        floor_z_mm=d.get("floor_z_mm", -60.0, float),
+        wall_y_mm=d.get("wall_y_mm", 70.0, float),
+        actuation_unit=d.get("actuation_unit", True, bool),
+        mount_posts=d.get("mount_posts", True, bool),
+        ambient=ambient,
+        lights=tuple(lights),
+        robot_color=tuple(d.get("robot_color", [0.78, 0.78, 0.80], ("vec", 3))),
+        robot_metallic=d.get("robot_metallic", 0.6, float, lambda v: 0 <= v <= 1, "must be in [0, 1]"),
+        robot_roughness=d.get("robot_roughness", 0.35, float, lambda v: 0 <= v <= 1, "must be in [0, 1]"),
+    )
+    d.done()
+    return dressing
+
+
+def _parse_lights(tables: list) -> list:
+    lights = []
+    for t in tables:
+        kind = t.get("kind", "directional", str, lambda v: v in ("directional", "point"), 'must be "directional" or "point"')
+        lights.append(
+            Light(
+                kind=kind,
+                intensity=t.get("intensity", 3.0, float, *_POS),
+                direction=tuple(t.get("direction", [0.0, 0.3, -1.0], ("vec", 3))),
+                position_mm=tuple(t.get("position_mm", [0.0, 0.0, 300.0], ("vec", 3))),
+                color=tuple(t.get("color", [1.0, 1.0, 1.0], ("vec", 3))),
+            )
+        )
+        t.done()
+    return lights
+
+
+def _parse_noise(n: _Table) -> NoiseModel:
+    kw = {}
+    for key, default in NoiseModel().__dict__.items():
+        kw[key] = n.get(key, default, float, *_NONNEG)
+    if kw["lighting_period_frames"] <= 0:
+        n.fail("lighting_period_frames", f"must be > 0, got {kw['lighting_period_frames']}")
+    n.done()
+    return NoiseModel(**kw)
+
+
+def _parse_sequence(s: _Table, robot: Robot) -> tuple:
+    n_tubes = robot.n_tubes
+    bg = s.get("background_frames", 30, int, lambda v: v >= 0, "must be >= 0")
+    dt = s.get("frame_interval_s", 1.0, float, *_POS)
+    joints = []
+    for st in s.tables("steps"):
+        frames = st.get("frames", _REQUIRED, int, lambda v: v >= 1, "must be >= 1")
+        ends = {}
+        for key in ("extension_mm", "rotation_deg"):
+            a = st.get(f"{key}_from", _REQUIRED, ("vec", n_tubes))
+            b = st.get(f"{key}_to", a, ("vec", n_tubes))
+            ends[key] = (np.asarray(a), np.asarray(b))
+        st.done()
+        for f in range(frames):
+            w = 0.0 if frames == 1 else f / (frames - 1)
+            ext = (1 - w) * ends["extension_mm"][0] + w * ends["extension_mm"][1]
+            rot = (1 - w) * ends["rotation_deg"][0] + w * ends["rotation_deg"][1]
+            j = Joints(extension_mm=tuple(ext), rotation_deg=tuple(rot))
+            try:
+                j.check(robot)
+            except ValueError as exc:
+                st.fail("extension_mm_from", str(exc))
+            joints.append(j)
+    s.done()
+    return joints, bg, dt
+
+
+def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
+    """Validate a parsed TOML document and build a :class:`Scene`."""
+    top = _Table(data, "", source)
+    top.get("format", "ctr-bench-scene", str, lambda v: v == "ctr-bench-scene", 'must be "ctr-bench-scene"')
+    top.get("version", 1, int, lambda v: v == 1, "must be 1 (the only version this ctr-bench reads)")
+    name = top.get("name", Path(source).stem, str)
+    seed = top.get("seed", 0, int, lambda v: v >= 0, "must be >= 0")
+    image = top.table("image")
+    width = image.get("width", 1024, int, lambda v: 16 <= v <= 8192, "must be in [16, 8192]")
+    height = image.get("height", 768, int, lambda v: 16 <= v <= 8192, "must be in [16, 8192]")
+    color = image.get("color", "mono", str, lambda v: v in ("mono", "rgb"), 'must be "mono" or "rgb"')
+    image.done()
+    robot, model, base, axis = _parse_robot(top.table("robot", required=True), source)
+    rig = _parse_rig(top.table("rig"), width, height, base, axis)
+    lighting = top.table("lighting")
+    ambient = lighting.get("ambient", 0.35, float, *_NONNEG)
+    lights = _parse_lights(lighting.tables("lights")) or [Light("directional", 3.0, (0.2, 0.5, -1.0))]
+    lighting.done()
+    dressing = _parse_dressing(top.table("backdrop"), lights, ambient)
+    noise = _parse_noise(top.table("noise"))
+    joints, bg, dt = _parse_sequence(top.table("sequence", required=True), robot)
+    if not joints:
+        raise SceneError(f"{source}: sequence.steps: at least one step with frames is required")
+    top.done()
+    return Scene(
+        name=name,
+        source=source,
+        seed=seed,
+        robot=robot,
+        model=model,
+        rig=rig,
+        color=color,
+        dressing=dressing,
+        noise=noise,
+        joints=joints,
+        background_frames=bg,
+        frame_interval_s=dt,
+    )
+
+
+def load_scene(path) -> Scene:
+    """Load and validate a scene TOML file; every error names the file and the key."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise SceneError(f"{path}: scene file not found") from None
+    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
+        raise SceneError(f"{path}: cannot read scene file ({exc.__class__.__name__})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path}: not valid TOML ({exc})") from None
+    return scene_from_dict(data, source=str(path))
