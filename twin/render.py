@@ -9,6 +9,7 @@ for every frame.
 """
 from __future__ import annotations
 
+import atexit
 import os
 from dataclasses import dataclass
 
@@ -54,6 +55,33 @@ class View:
     radiance: np.ndarray
     labels: np.ndarray | None
     depth_mm: np.ndarray | None
+
+
+_RENDERERS: dict = {}
+
+
+def _shared_renderer(width: int, height: int) -> "pyrender.OffscreenRenderer":
+    """One offscreen context per viewport size for the whole process.
+
+    pyrender's EGL platform terminates the process-wide EGL display when any
+    renderer is deleted, which breaks every other live renderer; sharing one
+    context per size (released at exit) avoids that and saves the set-up cost.
+    """
+    key = (int(width), int(height))
+    if key not in _RENDERERS:
+        if not _RENDERERS:
+            atexit.register(_release_renderers)
+        _RENDERERS[key] = pyrender.OffscreenRenderer(*key)
+    return _RENDERERS[key]
+
+
+def _release_renderers() -> None:
+    for r in _RENDERERS.values():
+        try:
+            r.delete()
+        except Exception:  # noqa: BLE001 - the process is exiting; nothing left to protect
+            pass
+    _RENDERERS.clear()
 
 
 def _texture(kind: str, c1, c2, seed: int, size: int = 256) -> np.ndarray:
@@ -131,7 +159,7 @@ class SetRenderer:
         self._robot_nodes = []
         self.canvas = (self.width + 2 * margin, self.height + 2 * margin)
         ss = self.supersample
-        self._renderer = pyrender.OffscreenRenderer(self.canvas[0] * ss, self.canvas[1] * ss)
+        self._renderer = _shared_renderer(self.canvas[0] * ss, self.canvas[1] * ss)
 
     # ------------------------------------------------------------------ set-up
     def _margin_needed(self, cam: Camera) -> int:
@@ -261,13 +289,13 @@ class SetRenderer:
             raise KeyError(f"renderer has no camera {camera.name!r}")
         self._place_camera(camera)
         m1, m2 = self._maps[camera.name]
-        color, _ = self._renderer.render(self.pr_scene)
+        color, z_all = self._renderer.render(self.pr_scene)
         color = self._downsample(color)
         radiance = cv2.remap(color, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         radiance = radiance.astype(np.float32) * (1.0 / 255.0)
         labels = depth = None
         if with_truth and self._robot_nodes:
-            labels, depth = self._truth_pass(m1, m2)
+            labels, depth = self._truth_pass(m1, m2, z_all)
         return View(radiance=radiance, labels=labels, depth_mm=depth)
 
     def _downsample(self, image: np.ndarray) -> np.ndarray:
@@ -276,8 +304,11 @@ class SetRenderer:
             return image
         return cv2.resize(image, self.canvas, interpolation=cv2.INTER_AREA)
 
-    def _truth_pass(self, m1, m2) -> tuple:
+    def _truth_pass(self, m1, m2, z_all: np.ndarray) -> tuple:
         """Robot labels and depth: the tubes alone, in flat label colours.
+
+        Parts of the robot hidden by the set (inside the pin vise collar) are
+        removed using the depth ``z_all`` of the full colour pass.
 
         A flat (unlit) colour pass keeps the renderer's multisampling, so a label's
         coverage is resolved below a pixel; pyrender's SEG pass is not multisampled
@@ -303,14 +334,18 @@ class SetRenderer:
             labels[seg[..., ch] >= 128] = idx + 1
         if self.supersample > 1:
             z = cv2.resize(z, self.canvas, interpolation=cv2.INTER_NEAREST)
+            z_all = cv2.resize(z_all, self.canvas, interpolation=cv2.INTER_NEAREST)
         depth = cv2.remap(z.astype(np.float32), m1, m2, cv2.INTER_NEAREST)
+        depth_all = cv2.remap(z_all.astype(np.float32), m1, m2, cv2.INTER_NEAREST)
+        # Hidden where something of the set is clearly in front (0.5 mm: beyond depth-buffer noise).
+        hidden = (depth > 0) & (depth_all > 0) & (depth_all < depth - 0.5)
+        labels[hidden] = 0
+        depth[hidden | (labels == 0)] = 0.0
         return labels, depth
 
     def close(self) -> None:
-        """Release the OpenGL context."""
-        if self._renderer is not None:
-            self._renderer.delete()
-            self._renderer = None
+        """Forget the renderer (the shared OpenGL context lives until the process exits)."""
+        self._renderer = None
 
     def __enter__(self):
         return self

@@ -1,0 +1,63 @@
+"""``ctr-bench render SCENE --out DIR``: render a twin scene into a session directory."""
+from __future__ import annotations
+
+from pathlib import Path
+
+DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "paper.toml"
+
+
+def add_scene_options(p) -> None:
+    """Options shared by every command that renders a scene."""
+    p.add_argument("scene", nargs="?", default=None, help=f"scene TOML file (default: {DEFAULT_SCENE.relative_to(DEFAULT_SCENE.parents[1])})")
+    p.add_argument("--frames", type=int, default=None, help="render only the first N robot frames")
+    p.add_argument("--background-frames", type=int, default=None, help="override the number of background frames")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def load_scene_from_args(args):
+    """The scene named by ``args`` with --frames/--background-frames applied."""
+    from dataclasses import replace
+
+    from twin.scene import load_scene
+
+    scene = load_scene(args.scene or DEFAULT_SCENE)
+    if args.frames is not None:
+        if args.frames < 1:
+            raise ValueError(f"--frames must be >= 1, got {args.frames}")
+        scene = scene.with_frames(scene.joints[: args.frames])
+    if args.background_frames is not None:
+        if args.background_frames < 0:
+            raise ValueError(f"--background-frames must be >= 0, got {args.background_frames}")
+        scene = replace(scene, background_frames=args.background_frames)
+    return scene
+
+
+def render_scene_to(scene, out: Path, quiet: bool = False) -> Path:
+    """Render ``scene`` into the session directory ``out``; returns it."""
+    from rig.progress import Progress
+    from rig.session import SessionWriter
+    from twin.record import render_session, robot_to_dict
+
+    meta = {"scene": scene.source, "scene_name": scene.name, "robot": robot_to_dict(scene.robot, scene.model)}
+    progress = Progress(enabled=not quiet)
+    with SessionWriter(out, scene.rig, source="twin", n_tubes=scene.robot.n_tubes, meta=meta) as writer:
+        render_session(scene, writer, progress=progress)
+    progress.close()
+    return out
+
+
+def _run(args) -> int:
+    scene = load_scene_from_args(args)
+    out = Path(args.out)
+    render_scene_to(scene, out, quiet=args.quiet)
+    print(f"rendered {len(scene.joints)} frame pairs and {scene.background_frames} background pairs of {scene.name!r} into {out}")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("render", help="render a twin scene into a session directory",
+                       description="Render a twin scene (robot frames, background frames, ground truth) into a session directory "
+                       "laid out as docs/session-format.md describes.")
+    add_scene_options(p)
+    p.add_argument("--out", required=True, help="session directory to create")
+    p.set_defaults(func=_run)

@@ -1,0 +1,30 @@
+"""Shared fixtures: the paper scene, and one twin renderer per test session (OpenGL contexts are costly)."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+import twin  # noqa: F401  (chooses the OpenGL platform before anything imports PyOpenGL)
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENES = ROOT / "scenes"
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+
+@pytest.fixture(scope="session")
+def paper_scene():
+    from twin.scene import load_scene
+
+    return load_scene(SCENES / "paper.toml")
+
+
+@pytest.fixture(scope="session")
+def paper_twin(paper_scene):
+    from twin.simulator import Twin
+
+    tw = Twin(paper_scene)
+    yield tw
+    tw.close()

@@ -1,0 +1,64 @@
+"""Render a scene into a session directory (the layout of docs/session-format.md)."""
+from __future__ import annotations
+
+import numpy as np
+
+from .robot import Robot
+from .scene import Scene
+from .simulator import Twin, TwinFrame
+
+__all__ = ["render_session", "truth_arrays", "robot_to_dict"]
+
+
+def robot_to_dict(robot: Robot, model: str) -> dict:
+    """JSON-ready robot description (for session.json; ``verify``/``fit`` read it back)."""
+    return {
+        "model": model,
+        "T_world_base": robot.T_world_base.tolist(),
+        "tubes": [dict(t.__dict__) for t in robot.tubes],
+    }
+
+
+def truth_arrays(frame: TwinFrame) -> dict:
+    """Ground truth of one twin frame as named arrays (mm, px; see docs/session-format.md)."""
+    bb = frame.backbone
+    out = {
+        "s_mm": bb.s_mm,
+        "backbone_world_mm": bb.p_world_mm,
+        "R_world_body": bb.R_world_body,
+        "outer_radius_mm": bb.outer_radius_mm,
+        "outermost_tube": bb.outermost_tube.astype(np.int16),
+        "tip_world_mm": bb.tip_world_mm,
+        "extension_mm": np.asarray(frame.joints.extension_mm),
+        "rotation_deg": np.asarray(frame.joints.rotation_deg),
+    }
+    for name, cam in frame.cameras.items():
+        out[f"T_cam_world_{name}"] = cam.T_cam_world
+        out[f"labels_{name}"] = frame.labels[name]
+        out[f"depth_mm_{name}"] = frame.depth_mm[name]
+        out[f"centerline_px_{name}"] = frame.centerline_px[name]
+    return out
+
+
+def render_session(scene: Scene, writer, progress=None) -> None:
+    """Render the scene's background frames, then its robot frames, into ``writer``.
+
+    Parameters
+    ----------
+    scene : Scene
+    writer : rig.session.SessionWriter
+        Receives each frame as soon as it is rendered (crash-safe).
+    progress : callable(str stage, int done, int total), optional
+    """
+    with Twin(scene) as tw:
+        nb = scene.background_frames
+        for i in range(nb):
+            writer.add_background(i, tw.background(i).images)
+            if progress:
+                progress("background", i + 1, nb)
+        n = len(scene.joints)
+        for i in range(n):
+            f = tw.frame(i)
+            writer.add_frame(i, f.images, t_s=i * scene.frame_interval_s, joints=f.joints, truth=truth_arrays(f))
+            if progress:
+                progress("frames", i + 1, n)
