@@ -146,6 +146,8 @@ class SetRenderer:
         cams = list(scene.rig.cameras.values())
         self.width, self.height = cams[0].width, cams[0].height
         self._maps = {}
+        self._ideal = {}
+        self._set_cache = {}
         margin = 4
         for cam in cams:
             margin = max(margin, self._margin_needed(cam))
@@ -153,8 +155,10 @@ class SetRenderer:
         for cam in cams:
             self._maps[cam.name] = self._distortion_maps(cam)
         d = scene.dressing
-        self.pr_scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 1.0], ambient_light=[d.ambient] * 3)
+        # Transparent clear colour: passes of a subset of meshes come back with their coverage in alpha.
+        self.pr_scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=[d.ambient] * 3)
         self._add_set(scene)
+        self._set_meshes = list(self.pr_scene.meshes)
         self._cam_node = None
         self._robot_nodes = []
         self.canvas = (self.width + 2 * margin, self.height + 2 * margin)
@@ -180,10 +184,12 @@ class SetRenderer:
         return int(np.ceil(over)) + 3
 
     def _distortion_maps(self, cam: Camera) -> tuple:
+        """Sensor pixel -> ideal canvas position maps: float (mx, my) and OpenCV's fixed-point pair."""
         uu, vv = np.meshgrid(np.arange(cam.width, dtype=float), np.arange(cam.height, dtype=float))
         ideal = cam.undistort_pixels(np.stack([uu.ravel(), vv.ravel()], 1)) + self.margin
         mx = ideal[:, 0].reshape(cam.height, cam.width).astype(np.float32)
         my = ideal[:, 1].reshape(cam.height, cam.width).astype(np.float32)
+        self._ideal[cam.name] = (mx, my)
         return cv2.convertMaps(mx, my, cv2.CV_16SC2)
 
     def _add_set(self, scene: Scene) -> None:
@@ -260,6 +266,23 @@ class SetRenderer:
             truth_node = self.pr_scene.add(truth)
             self._robot_nodes.append((node, truth_node, idx))
 
+    def set_props(self, props: list | None) -> None:
+        """Replace the extra props in the set (e.g. a calibration board) or remove them (None).
+
+        Parameters
+        ----------
+        props : list or None
+            Items are a ``pyrender.Mesh`` (placed with its vertices in world mm) or a
+            ``(pyrender.Mesh, T_world_mesh)`` pair (4x4, mesh frame -> world, mm). The
+            same mesh may be placed again at another pose without re-uploading it.
+        """
+        for node in getattr(self, "_prop_nodes", []):
+            self.pr_scene.remove_node(node)
+        self._prop_nodes = []
+        for item in props or []:
+            mesh, pose = item if isinstance(item, tuple) else (item, np.eye(4))
+            self._prop_nodes.append(self.pr_scene.add(mesh, pose=np.asarray(pose, dtype=np.float64)))
+
     # ------------------------------------------------------------------ render
     def _place_camera(self, camera: Camera) -> None:
         K = camera.K
@@ -278,6 +301,12 @@ class SetRenderer:
     def render(self, camera: Camera, with_truth: bool = True) -> View:
         """Render the set (and robot, if set) through ``camera`` (its pose may be jittered).
 
+        The static set is rendered once per camera at its nominal pose and cached;
+        a jittered view of it is obtained by re-projecting every pixel through its
+        depth (exact up to the depth change within one pixel of motion). Only the
+        robot is rendered per frame, at the jittered pose, and composited over the
+        set with its anti-aliased coverage, hidden where the set is in front of it.
+
         Parameters
         ----------
         camera : Camera
@@ -287,16 +316,89 @@ class SetRenderer:
         """
         if camera.name not in self._maps:
             raise KeyError(f"renderer has no camera {camera.name!r}")
+        set_color, set_depth = self._set_view(camera)
+        labels = depth = None
+        if not self._robot_nodes:
+            return View(radiance=set_color, labels=None, depth_mm=None)
         self._place_camera(camera)
         m1, m2 = self._maps[camera.name]
-        color, z_all = self._renderer.render(self.pr_scene)
-        color = self._downsample(color)
-        radiance = cv2.remap(color, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        radiance = radiance.astype(np.float32) * (1.0 / 255.0)
-        labels = depth = None
-        if with_truth and self._robot_nodes:
-            labels, depth = self._truth_pass(m1, m2, z_all)
+        look = [node.mesh for node, _, _ in self._robot_nodes]
+        rgba, z = self._render_only(look, pyrender.RenderFlags.RGBA)
+        rgba = cv2.remap(rgba, m1, m2, cv2.INTER_LINEAR).astype(np.float32) * np.float32(1.0 / 255.0)
+        z = cv2.remap(z, m1, m2, cv2.INTER_NEAREST)
+        visible = self._in_front(z, set_depth)
+        alpha = rgba[..., 3] * visible
+        # The robot pass is premultiplied by its coverage (cleared to transparent black).
+        radiance = rgba[..., :3] * visible[..., None] + set_color * (1.0 - alpha)[..., None]
+        if with_truth:
+            labels, depth = self._truth_pass(m1, m2, set_depth)
         return View(radiance=radiance, labels=labels, depth_mm=depth)
+
+    @staticmethod
+    def _in_front(z_robot: np.ndarray, z_set: np.ndarray) -> np.ndarray:
+        """1 where the robot is not hidden by the set (0.5 mm: depth-buffer noise), else 0.
+
+        Coverage, not depth, says where the robot is drawn: at anti-aliased edges the
+        resolved depth may come from a background sample.
+        """
+        hidden = (z_robot > 0) & (z_set > 0) & (z_set < z_robot - 0.5)
+        return (~hidden).astype(np.float32)
+
+    def _render_only(self, meshes: list, flags) -> tuple:
+        """Render ``meshes`` alone (everything else hidden) on a transparent canvas."""
+        shown = [m for m in self.pr_scene.meshes if m.is_visible]
+        for m in shown:
+            m.is_visible = False
+        for m in meshes:
+            m.is_visible = True
+        try:
+            color, z = self._renderer.render(self.pr_scene, flags=flags)
+        finally:
+            for m in meshes:
+                m.is_visible = False
+            for m in shown:
+                m.is_visible = True
+        return self._downsample(color), self._downsample_depth(z)
+
+    def _set_view(self, camera: Camera) -> tuple:
+        """The set through ``camera``: radiance (H, W, 3) float32 and depth (H, W) mm at sensor pixels."""
+        name = camera.name
+        if name not in self._set_cache:
+            nominal = self.scene.rig[name]
+            self._place_camera(nominal)
+            color, z = self._render_only(self._set_meshes, pyrender.RenderFlags.NONE)
+            self._set_cache[name] = (color, z.astype(np.float32))
+        color, z = self._set_cache[name]
+        mx, my = self._set_maps(camera, z)
+        radiance = cv2.remap(color, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        depth = cv2.remap(z, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+        return radiance.astype(np.float32) * np.float32(1.0 / 255.0), depth
+
+    def _set_maps(self, camera: Camera, z_nominal: np.ndarray) -> tuple:
+        """Sensor pixel -> position on the nominal canvas, through lens distortion and jitter."""
+        mx, my = self._ideal[camera.name]
+        nominal = self.scene.rig[camera.name]
+        D = camera.T_cam_world @ nominal.T_world_cam  # nominal camera frame -> jittered camera frame
+        if np.allclose(D, np.eye(4), atol=1e-12):
+            return mx, my
+        # Back-project each ideal pixel of the jittered camera with the set's depth there
+        # (the nominal depth at the same pixel: jitter moves the image by about a pixel),
+        # move the point into the nominal camera and project it.
+        K = camera.K
+        m = np.float32(self.margin)
+        zz = cv2.remap(z_nominal, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+        zz[zz <= 0] = 1e4
+        x = (mx - m - np.float32(K[0, 2])) * np.float32(1.0 / K[0, 0]) * zz
+        y = (my - m - np.float32(K[1, 2])) * np.float32(1.0 / K[1, 1]) * zz
+        Rt = D[:3, :3].T.astype(np.float32)
+        t = D[:3, 3].astype(np.float32)
+        xs, ys, zs = x - t[0], y - t[1], zz - t[2]
+        X = Rt[0, 0] * xs + Rt[0, 1] * ys + Rt[0, 2] * zs
+        Y = Rt[1, 0] * xs + Rt[1, 1] * ys + Rt[1, 2] * zs
+        Z = Rt[2, 0] * xs + Rt[2, 1] * ys + Rt[2, 2] * zs
+        u = np.float32(K[0, 0]) * X / Z + np.float32(K[0, 2]) + m
+        v = np.float32(K[1, 1]) * Y / Z + np.float32(K[1, 2]) + m
+        return u, v
 
     def _downsample(self, image: np.ndarray) -> np.ndarray:
         """Average a supersampled canvas down to the canvas (area filter)."""
@@ -304,43 +406,30 @@ class SetRenderer:
             return image
         return cv2.resize(image, self.canvas, interpolation=cv2.INTER_AREA)
 
-    def _truth_pass(self, m1, m2, z_all: np.ndarray) -> tuple:
+    def _downsample_depth(self, z: np.ndarray) -> np.ndarray:
+        if self.supersample == 1:
+            return z
+        return cv2.resize(z, self.canvas, interpolation=cv2.INTER_NEAREST)
+
+    def _truth_pass(self, m1, m2, set_depth: np.ndarray) -> tuple:
         """Robot labels and depth: the tubes alone, in flat label colours.
 
-        Parts of the robot hidden by the set (inside the pin vise collar) are
-        removed using the depth ``z_all`` of the full colour pass.
-
-        A flat (unlit) colour pass keeps the renderer's multisampling, so a label's
+        A flat (unlit) colour pass keeps the renderer's anti-aliasing, so a label's
         coverage is resolved below a pixel; pyrender's SEG pass is not multisampled
-        and would quantize the ground truth to whole pixels.
+        and would quantize the ground truth to whole pixels. Parts hidden by the
+        set (inside the pin vise collar) are removed with the set's depth.
         """
-        shown = [m for m in self.pr_scene.meshes if m.is_visible]
-        for m in shown:
-            m.is_visible = False
-        for _, truth_node, _ in self._robot_nodes:
-            truth_node.mesh.is_visible = True
-        try:
-            seg, z = self._renderer.render(self.pr_scene, flags=pyrender.RenderFlags.FLAT)
-        finally:
-            for _, truth_node, _ in self._robot_nodes:
-                truth_node.mesh.is_visible = False
-            for m in shown:
-                m.is_visible = True
-        seg = cv2.remap(self._downsample(seg), m1, m2, cv2.INTER_LINEAR)
+        seg, z = self._render_only([t.mesh for _, t, _ in self._robot_nodes], pyrender.RenderFlags.FLAT)
+        seg = cv2.remap(seg, m1, m2, cv2.INTER_LINEAR)
+        depth = cv2.remap(z, m1, m2, cv2.INTER_NEAREST)
+        visible = self._in_front(depth, set_depth) > 0
         labels = np.zeros(seg.shape[:2], np.uint8)
         for k, (_, _, idx) in enumerate(self._robot_nodes):
             ch = int(np.argmax(_SEG_COLORS[k]))
             # A pixel belongs to a tube when the tube covers at least half of it.
             labels[seg[..., ch] >= 128] = idx + 1
-        if self.supersample > 1:
-            z = cv2.resize(z, self.canvas, interpolation=cv2.INTER_NEAREST)
-            z_all = cv2.resize(z_all, self.canvas, interpolation=cv2.INTER_NEAREST)
-        depth = cv2.remap(z.astype(np.float32), m1, m2, cv2.INTER_NEAREST)
-        depth_all = cv2.remap(z_all.astype(np.float32), m1, m2, cv2.INTER_NEAREST)
-        # Hidden where something of the set is clearly in front (0.5 mm: beyond depth-buffer noise).
-        hidden = (depth > 0) & (depth_all > 0) & (depth_all < depth - 0.5)
-        labels[hidden] = 0
-        depth[hidden | (labels == 0)] = 0.0
+        labels[~visible] = 0
+        depth[labels == 0] = 0.0
         return labels, depth
 
     def close(self) -> None:
