@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 __all__ = ["main", "CLIError", "COMMANDS"]
@@ -43,6 +44,10 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     """Entry point of the ``ctr-bench`` console script."""
+    # Reconstruction figures are one-core figures: keep BLAS/OpenMP pools at one thread
+    # (must happen before numpy is imported).
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
     parser = _parser()
     args = parser.parse_args(argv)
     try:
@@ -51,6 +56,8 @@ def main(argv=None) -> int:
         print(f"ctr-bench {args.command}: interrupted", file=sys.stderr)
         return 130
     except (CLIError, ValueError, FileNotFoundError, TimeoutError, OSError) as exc:
+        if os.environ.get("CTR_BENCH_DEBUG"):
+            raise
         msg = str(exc).strip().splitlines()[0] if str(exc).strip() else exc.__class__.__name__
         print(f"ctr-bench {args.command}: error: {msg}", file=sys.stderr)
         return 2

@@ -1,0 +1,60 @@
+"""``ctr-bench reconstruct SESSION_DIR --out DIR``: reconstruct (and score) every frame of a session."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+def add_method_options(p) -> None:
+    """--method and --params, shared by run, reconstruct and experiment."""
+    p.add_argument("--method", default="paper", help="reconstruction method: paper (default) or fast")
+    p.add_argument("--params", default=None, metavar="FILE", help="TOML parameter file (e.g. written by ctr-bench tune)")
+
+
+def method_params(args):
+    """The parameter dataclass for ``args.method``, from ``--params`` when given."""
+    from recon.methods import get_method
+    from recon.params import load_params
+
+    m = get_method(args.method)
+    return load_params(m.params_type, args.params) if args.params else m.params_type()
+
+
+def one_core() -> None:
+    """Keep reconstruction on one core, so ms per pair are one-core figures."""
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+def reconstruct_and_report(session_dir: Path, out: Path, args) -> dict:
+    from rig.progress import Progress
+    from rig.reconstruct import format_table, reconstruct_session
+
+    params = method_params(args)
+    one_core()
+    progress = Progress(enabled=not getattr(args, "quiet", False))
+    summary = reconstruct_session(session_dir, out, method=args.method, params=params, progress=progress)
+    progress.close()
+    print(format_table(summary))
+    print(f"\noutputs in {out}: frames/*.csv, backbones.npz, summary.json")
+    return summary
+
+
+def _run(args) -> int:
+    summary = reconstruct_and_report(Path(args.session), Path(args.out), args)
+    if args.json:
+        print(json.dumps({k: v for k, v in summary.items() if k != "per_frame"}, indent=2))
+    return 0 if summary["failed_frames"] < summary["frames"] else 1
+
+
+def register(sub) -> None:
+    p = sub.add_parser("reconstruct", help="reconstruct every frame of a session directory",
+                       description="Build the background model from the session's background frames, reconstruct every frame, "
+                       "write a CSV per frame, one NPZ and summary.json, and score against ground truth when the session has it.")
+    p.add_argument("session", help="session directory (docs/session-format.md)")
+    add_method_options(p)
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--json", action="store_true", help="also print the summary (without per-frame list) as JSON")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_run)
