@@ -4,30 +4,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from twin.groundtruth import extend_to_mesh_start, inside_fraction, projected_tube_area_px
 from twin.mesh import tube_meshes
 from twin.simulator import Twin
-
-
-def projected_tube_area_px(camera, backbone, s_min_mm=-np.inf):
-    """Analytic image area (px) of the tubes: projected length times projected diameter.
-
-    The diameter is measured by projecting two surface points across the tube,
-    perpendicular to both the tangent and the viewing ray, so perspective and lens
-    distortion are included.
-    """
-    keep = backbone.s_mm >= s_min_mm
-    p = backbone.p_world_mm[keep]
-    r = backbone.outer_radius_mm[keep]
-    t = backbone.R_world_body[keep][:, :, 2]
-    view = p - camera.center_world_mm
-    n = np.cross(t, view)
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    a, _ = camera.project(p + r[:, None] * n)
-    b, _ = camera.project(p - r[:, None] * n)
-    width = np.linalg.norm(a - b, axis=1)
-    c, _ = camera.project(p)
-    seg = np.linalg.norm(np.diff(c, axis=0), axis=1)
-    return float(np.sum(seg * 0.5 * (width[1:] + width[:-1])))
 
 
 @pytest.fixture(scope="module")
@@ -38,10 +17,8 @@ def frames(paper_twin, paper_scene):
 
 def test_backbone_projects_inside_rendered_silhouette(frames):
     for f in frames:
-        for name, labels in f.labels.items():
-            uv = np.rint(f.centerline_px[name]).astype(int)
-            inside = labels[uv[:, 1], uv[:, 0]] > 0
-            assert inside.mean() >= 0.99, f"{name}: only {inside.mean():.3f} of the backbone inside the silhouette"
+        for name, frac in inside_fraction(f).items():
+            assert frac >= 0.99, f"{name}: only {frac:.3f} of the backbone inside the silhouette"
 
 
 def test_outer_and_inner_labels_where_the_model_says(frames):
@@ -63,18 +40,7 @@ def test_mask_area_matches_projected_tube_area(paper_scene):
     with Twin(scene) as tw:
         for i in (2, 12):
             f = tw.frame(i)
-            bb = tw.backbone(f.joints)
-            # extend the backbone back to s = -8 mm, where the mesh starts
-            t0 = bb.R_world_body[0][:, 2]
-            s_back = np.linspace(-8.0, 0.0, 81)[:-1]
-            ext = replace(
-                bb,
-                s_mm=np.concatenate([s_back, bb.s_mm]),
-                p_world_mm=np.concatenate([bb.p_world_mm[0] + s_back[:, None] * t0, bb.p_world_mm]),
-                R_world_body=np.concatenate([np.repeat(bb.R_world_body[:1], len(s_back), 0), bb.R_world_body]),
-                outer_radius_mm=np.concatenate([np.full(len(s_back), bb.outer_radius_mm[0]), bb.outer_radius_mm]),
-                outermost_tube=np.concatenate([np.zeros(len(s_back), int), bb.outermost_tube]),
-            )
+            ext = extend_to_mesh_start(f.backbone)
             for name, cam in f.cameras.items():
                 area = (f.labels[name] > 0).sum()
                 expected = projected_tube_area_px(cam, ext)

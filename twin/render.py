@@ -221,8 +221,8 @@ class SetRenderer:
             self.pr_scene.add(_solid(chuck, brass, metallic=0.8, roughness=0.35, smooth=True))
             self.pr_scene.add(_solid(collar, brass, metallic=0.8, roughness=0.35, smooth=True))
         if d.mount_posts:
-            # Two posts of the camera mount, far from the robot's workspace.
-            for x, y in ((cx + 52.0, 40.0), (cx + 52.0, -40.0)):
+            # Two posts of the camera mount beside the actuation unit, clear of the robot's workspace.
+            for x, y in ((cx - 50.0, 40.0), (cx - 50.0, -40.0)):
                 post = meshes.cylinder_mesh([x, y, d.floor_z_mm], [x, y, d.floor_z_mm + 22.0], 4.0)
                 self.pr_scene.add(_solid(post, (0.35, 0.36, 0.38), metallic=0.5, roughness=0.4, smooth=True))
         for light in d.lights:
@@ -267,13 +267,17 @@ class SetRenderer:
             self._robot_nodes.append((node, truth_node, idx))
 
     def set_props(self, props: list | None) -> None:
-        """Replace the extra props in the set (e.g. a calibration board) or remove them (None).
+        """Replace the extra props of the set (e.g. a calibration board) or remove them (None).
+
+        Props are part of the set: they are drawn in the set pass (the set view cache
+        is dropped, so the next frame of each camera renders them), hide the robot
+        where they are in front of it, and move with camera jitter like the set.
 
         Parameters
         ----------
         props : list or None
-            Items are a ``pyrender.Mesh`` (placed with its vertices in world mm) or a
-            ``(pyrender.Mesh, T_world_mesh)`` pair (4x4, mesh frame -> world, mm). The
+            Items are a ``pyrender.Mesh`` (vertices in world mm) or a
+            ``(pyrender.Mesh, T_world_mesh)`` pair (4x4, mesh frame -> world, mm); the
             same mesh may be placed again at another pose without re-uploading it.
         """
         for node in getattr(self, "_prop_nodes", []):
@@ -282,6 +286,11 @@ class SetRenderer:
         for item in props or []:
             mesh, pose = item if isinstance(item, tuple) else (item, np.eye(4))
             self._prop_nodes.append(self.pr_scene.add(mesh, pose=np.asarray(pose, dtype=np.float64)))
+        if hasattr(self, "_set_meshes"):
+            if not hasattr(self, "_bare_set_meshes"):
+                self._bare_set_meshes = list(self._set_meshes)
+            self._set_meshes = self._bare_set_meshes + [node.mesh for node in self._prop_nodes]
+            self._set_cache.clear()
 
     # ------------------------------------------------------------------ render
     def _place_camera(self, camera: Camera) -> None:
@@ -323,26 +332,27 @@ class SetRenderer:
         self._place_camera(camera)
         m1, m2 = self._maps[camera.name]
         look = [node.mesh for node, _, _ in self._robot_nodes]
-        rgba, z = self._render_only(look, pyrender.RenderFlags.RGBA)
-        rgba = cv2.remap(rgba, m1, m2, cv2.INTER_LINEAR).astype(np.float32) * np.float32(1.0 / 255.0)
-        z = cv2.remap(z, m1, m2, cv2.INTER_NEAREST)
-        visible = self._in_front(z, set_depth)
-        alpha = rgba[..., 3] * visible
-        # The robot pass is premultiplied by its coverage (cleared to transparent black).
-        radiance = rgba[..., :3] * visible[..., None] + set_color * (1.0 - alpha)[..., None]
-        if with_truth:
-            labels, depth = self._truth_pass(m1, m2, set_depth)
+        # Robot alone on black: colours come premultiplied by coverage. The coverage itself
+        # comes from the flat label pass (OSMesa contexts have no alpha channel to carry it).
+        rgb, _ = self._render_only(look, pyrender.RenderFlags.NONE)
+        rgb = cv2.remap(rgb, m1, m2, cv2.INTER_LINEAR).astype(np.float32) * np.float32(1.0 / 255.0)
+        seg, labels, depth, hidden = self._truth_pass(m1, m2, set_depth)
+        visible = ~hidden
+        alpha = np.minimum(seg.sum(axis=2, dtype=np.float32) * np.float32(1.0 / 255.0), 1.0) * visible
+        radiance = rgb * visible[..., None] + set_color * (1.0 - alpha)[..., None]
+        if not with_truth:
+            labels = depth = None
         return View(radiance=radiance, labels=labels, depth_mm=depth)
 
     @staticmethod
-    def _in_front(z_robot: np.ndarray, z_set: np.ndarray) -> np.ndarray:
-        """1 where the robot is not hidden by the set (0.5 mm: depth-buffer noise), else 0.
+    def _hidden(z_robot: np.ndarray, z_set: np.ndarray) -> np.ndarray:
+        """Where the robot is drawn behind the set (0.5 mm: beyond depth-buffer noise).
 
         Coverage, not depth, says where the robot is drawn: at anti-aliased edges the
-        resolved depth may come from a background sample.
+        resolved depth may come from a background sample, so a pixel is only called
+        hidden when both depths are known.
         """
-        hidden = (z_robot > 0) & (z_set > 0) & (z_set < z_robot - 0.5)
-        return (~hidden).astype(np.float32)
+        return (z_robot > 0) & (z_set > 0) & (z_set < z_robot - 0.5)
 
     def _render_only(self, meshes: list, flags) -> tuple:
         """Render ``meshes`` alone (everything else hidden) on a transparent canvas."""
@@ -412,25 +422,36 @@ class SetRenderer:
         return cv2.resize(z, self.canvas, interpolation=cv2.INTER_NEAREST)
 
     def _truth_pass(self, m1, m2, set_depth: np.ndarray) -> tuple:
-        """Robot labels and depth: the tubes alone, in flat label colours.
+        """Robot coverage, labels and depth: the tubes alone, in flat label colours.
 
         A flat (unlit) colour pass keeps the renderer's anti-aliasing, so a label's
         coverage is resolved below a pixel; pyrender's SEG pass is not multisampled
         and would quantize the ground truth to whole pixels. Parts hidden by the
         set (inside the pin vise collar) are removed with the set's depth.
+
+        Returns
+        -------
+        seg : (H, W, 3) uint8
+            Flat colour pass (coverage per tube colour).
+        labels : (H, W) uint8
+            0, or 1 + tube index where that tube covers at least half the pixel and is visible.
+        depth : (H, W) float32
+            Depth (mm) of the visible robot surface, 0 elsewhere.
+        hidden : (H, W) bool
+            Where the robot is drawn but the set is in front of it.
         """
         seg, z = self._render_only([t.mesh for _, t, _ in self._robot_nodes], pyrender.RenderFlags.FLAT)
         seg = cv2.remap(seg, m1, m2, cv2.INTER_LINEAR)
         depth = cv2.remap(z, m1, m2, cv2.INTER_NEAREST)
-        visible = self._in_front(depth, set_depth) > 0
+        hidden = self._hidden(depth, set_depth)
         labels = np.zeros(seg.shape[:2], np.uint8)
         for k, (_, _, idx) in enumerate(self._robot_nodes):
             ch = int(np.argmax(_SEG_COLORS[k]))
             # A pixel belongs to a tube when the tube covers at least half of it.
             labels[seg[..., ch] >= 128] = idx + 1
-        labels[~visible] = 0
+        labels[hidden] = 0
         depth[labels == 0] = 0.0
-        return labels, depth
+        return seg, labels, depth, hidden
 
     def close(self) -> None:
         """Forget the renderer (the shared OpenGL context lives until the process exits)."""
