@@ -1,0 +1,113 @@
+"""Ordering a voxel cloud into a base-first backbone curve."""
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from recon.backbone import BackboneParams, order_backbone, resample_polyline, arc_length
+from recon.errors import FrameError
+from recon.metrics import point_to_polyline_distances
+
+
+def bent_curve(n=2000):
+    """Straight 30 mm along x, then a 3-D arc of radius 40 mm over 70 degrees (mm)."""
+    s = np.linspace(0.0, 30.0 + 40.0 * np.radians(70.0), n)
+    a = np.clip(s - 30.0, 0.0, None) / 40.0
+    x = np.where(s < 30.0, s, 30.0 + 40.0 * np.sin(a))
+    bend = 40.0 * (1.0 - np.cos(a))
+    return np.stack([x, 0.6 * bend, 0.8 * bend], axis=1) + np.array([5.0, 2.0, -3.0]), s
+
+
+def voxelize(curve, size, radius_voxels=0.9, origin=(0.0, 0.0, 0.0)):
+    """Centres of the grid voxels (edges ``size`` mm) within ``radius_voxels`` x max edge of the curve.
+
+    Returns the centres (n, 3) mm and, per voxel, the index of the nearest curve point.
+    """
+    size = np.broadcast_to(np.asarray(size, float), (3,))
+    radius = radius_voxels * size.max()
+    reach = np.ceil(radius / size).astype(int)
+    offsets = np.stack(np.meshgrid(*[np.arange(-r, r + 1) for r in reach], indexing="ij"), axis=-1).reshape(-1, 3)
+    near = np.round((curve - origin) / size).astype(int)
+    cells = np.unique((near[:, None, :] + offsets[None, :, :]).reshape(-1, 3), axis=0)
+    centres = cells * size + origin
+    d, idx = cKDTree(curve).query(centres, distance_upper_bound=radius)
+    keep = np.isfinite(d)
+    return centres[keep], idx[keep]
+
+
+@pytest.mark.parametrize("size", [0.8, (0.9, 0.3, 0.25)], ids=["cubic", "anisotropic"])
+def test_recovers_curve_base_first(size):
+    curve, s = bent_curve()
+    vox, _ = voxelize(curve, size)
+    vox = vox[np.random.default_rng(0).permutation(len(vox))]  # order must not matter
+    bb = order_backbone(vox, None, curve[0], [1.0, 0.0, 0.0], voxel_size_mm=size)
+    voxel = float(np.max(size))
+    # Within half a voxel of the true curve, base first, tip last (the end
+    # points average voxels past the curve's ends: one voxel there).
+    assert point_to_polyline_distances(bb.points_mm[1:-1], curve).max() <= 0.5 * voxel
+    assert np.linalg.norm(bb.points_mm[0] - curve[0]) <= voxel
+    assert np.linalg.norm(bb.tip_mm - curve[-1]) <= voxel
+    np.testing.assert_array_equal(bb.tip_mm, bb.points_mm[-1])
+    assert abs(bb.length_mm - s[-1]) <= 2 * voxel
+    steps = np.linalg.norm(np.diff(bb.points_mm, axis=0), axis=1)
+    np.testing.assert_allclose(steps[:-1], 0.5, rtol=0.01)  # chords of 0.5 mm arcs
+    assert bb.n_voxels == len(vox) and bb.n_dropped == 0
+    assert np.isnan(bb.transition_s_mm) and np.all(np.isnan(bb.transition_mm))
+
+
+def test_base_is_the_end_nearest_the_base_point():
+    curve, _ = bent_curve()
+    vox, _ = voxelize(curve, 0.8)
+    bb = order_backbone(vox, None, curve[-1] + 3.0, [1.0, 0.0, 0.0], voxel_size_mm=0.8)
+    assert np.linalg.norm(bb.points_mm[0] - curve[-1]) <= 0.8
+
+
+def test_insertion_axis_breaks_a_tie():
+    line = np.stack([np.linspace(-20, 20, 400), np.zeros(400), np.zeros(400)], axis=1)
+    vox, _ = voxelize(line, 0.5)
+    # Base point equidistant from both ends: the end further back along the axis is the base.
+    bb = order_backbone(vox, None, [0.0, 10.0, 0.0], [-1.0, 0.0, 0.0], voxel_size_mm=0.5)
+    assert bb.points_mm[0, 0] > 19.0 and bb.tip_mm[0] < -19.0
+
+
+def test_transition_from_labels():
+    curve, s = bent_curve()
+    vox, idx = voxelize(curve, 0.8)
+    labels = np.where(s[idx] < 45.0, 1, 2).astype(np.uint8)
+    bb = order_backbone(vox, labels, curve[0], [1.0, 0.0, 0.0], voxel_size_mm=0.8)
+    assert abs(bb.transition_s_mm - 45.0) <= 2 * 0.8
+    true_point = curve[np.searchsorted(s, 45.0)]
+    assert np.linalg.norm(bb.transition_mm - true_point) <= 2 * 0.8
+
+
+def test_largest_component_kept():
+    curve, _ = bent_curve()
+    vox, _ = voxelize(curve, 0.8)
+    speck = curve[0] + np.array([0.0, 0.0, 30.0]) + np.array([[0, 0, 0], [0.8, 0, 0], [0, 0.8, 0]])
+    bb = order_backbone(np.vstack([vox, speck]), None, curve[0], [1.0, 0.0, 0.0], voxel_size_mm=0.8)
+    assert bb.n_dropped == 3 and bb.n_voxels == len(vox)
+    assert point_to_polyline_distances(bb.points_mm[1:-1], curve).max() <= 0.4
+
+
+def test_voxel_size_inferred():
+    curve, _ = bent_curve()
+    vox, _ = voxelize(curve, (0.9, 0.3, 0.25), origin=(0.1, 0.05, 0.02))
+    bb = order_backbone(vox, None, curve[0], [1.0, 0.0, 0.0])
+    assert point_to_polyline_distances(bb.points_mm[1:-1], curve).max() <= 0.45
+
+
+def test_empty_cloud():
+    with pytest.raises(FrameError, match="no voxel"):
+        order_backbone(np.zeros((0, 3)), None, np.zeros(3), [1.0, 0.0, 0.0])
+
+
+def test_resample_polyline():
+    pts = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 2.0, 0.0]])
+    out = resample_polyline(pts, 0.5)
+    assert len(out) == 7
+    np.testing.assert_allclose(out[-1], pts[-1])
+    np.testing.assert_allclose(arc_length(out)[-1], 3.0)
+
+
+def test_params_validated():
+    with pytest.raises(ValueError):
+        BackboneParams(step_mm=0.0)

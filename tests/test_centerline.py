@@ -1,0 +1,116 @@
+"""Centerline extraction by two-disk erosion, with outer/inner labels."""
+import numpy as np
+import pytest
+
+from recon.camera import Camera, look_at
+from recon.centerline import INNER, OUTER, CenterlineParams, centerline_params_for, extract_centerline
+
+H, W = 300, 400
+R_OUTER, R_INNER = 0.8 / 0.12, 0.5 / 0.12  # px: the paper's tubes at ~0.12 mm/px
+PARAMS = CenterlineParams(outer_radius_px=5, inner_radius_px=3)
+
+
+def segment_distance(a, b):
+    """Distance (px) of every pixel centre to the segment a-b, and the position along it (0..1)."""
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    ab = b - a
+    t = np.clip(((xx - a[0]) * ab[0] + (yy - a[1]) * ab[1]) / (ab @ ab), 0.0, 1.0)
+    return np.hypot(xx - a[0] - t * ab[0], yy - a[1] - t * ab[1]), t
+
+
+def two_tube(a, m, b):
+    """Silhouette of an outer tube a-m continued by an inner tube m-b (pixel coordinates x, y)."""
+    d_out, _ = segment_distance(a, m)
+    d_in, _ = segment_distance(m, b)
+    return (d_out <= R_OUTER) | (d_in <= R_INNER)
+
+
+@pytest.mark.parametrize(
+    "a, m, b",
+    [((40, 150), (220, 150), (360, 150)), ((40, 40), (200, 160), (340, 265))],
+    ids=["horizontal", "diagonal"],
+)
+def test_centerline_on_axis_with_labels(a, m, b):
+    sil = two_tube(a, m, b)
+    cl, labels = extract_centerline(sil, PARAMS)
+    assert cl.dtype == bool and labels.dtype == np.uint8
+    np.testing.assert_array_equal(cl, labels > 0)
+    d_out, t_out = segment_distance(a, m)
+    d_in, t_in = segment_distance(m, b)
+    outer, inner = labels == OUTER, labels == INNER
+    # The erosion leaves a band (tube radius - disk radius = 1.7 px on either
+    # side of the axis); its middle lies within 1 px of the true axis.
+    assert np.minimum(d_out, d_in)[cl].max() <= 2.0
+    assert band_middle_offset(outer, a, m) <= 1.0
+    assert band_middle_offset(inner, m, b) <= 1.0
+    L_out = np.hypot(*np.subtract(m, a))
+    L_in = np.hypot(*np.subtract(b, m))
+    # Outer pixels lie along the outer tube (its capsule end included), inner
+    # pixels beyond the step; no inner line runs alongside the outer tube.
+    assert np.all(along_unclipped(a, m)[outer] <= L_out + R_OUTER)
+    assert np.all(along_unclipped(m, b)[inner] >= 0.0)
+    assert np.all(d_out[inner] > 2.5)
+    # Both centerlines cover their tube, less the erosion at the ends.
+    cover_out = np.ptp(t_out[outer]) * L_out
+    cover_in = np.ptp(t_in[inner]) * L_in
+    assert cover_out >= L_out - 2 * PARAMS.outer_radius_px - 2
+    assert cover_in >= L_in - 2 * PARAMS.inner_radius_px - 8
+
+
+def band_middle_offset(mask, a, b):
+    """Largest |mean signed distance| (px) of ``mask``'s pixels to the line a->b, per 2-px slice along it."""
+    ys, xs = np.nonzero(mask)
+    u = np.subtract(b, a) / np.hypot(*np.subtract(b, a))
+    rel = np.stack([xs - a[0], ys - a[1]], axis=1)
+    offset = rel @ np.array([-u[1], u[0]])
+    slices = np.floor(rel @ u / 2.0).astype(int)
+    slices -= slices.min()
+    counts, sums = np.bincount(slices), np.bincount(slices, offset)
+    used = counts > 0
+    return np.abs(sums[used] / counts[used]).max()
+
+
+def along_unclipped(a, b):
+    """Signed position (px) of every pixel centre along the line a->b, from a."""
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float64)
+    u = np.subtract(b, a) / np.hypot(*np.subtract(b, a))
+    return (xx - a[0]) * u[0] + (yy - a[1]) * u[1]
+
+
+def test_single_tube_is_all_outer():
+    d, _ = segment_distance((50, 100), (350, 200))
+    cl, labels = extract_centerline(d <= R_OUTER, PARAMS)
+    assert cl.sum() > 250 and not np.any(labels == INNER)
+
+
+def test_thin_tube_is_all_inner():
+    d, _ = segment_distance((50, 100), (350, 200))
+    cl, labels = extract_centerline(d <= R_INNER, PARAMS)
+    assert cl.sum() > 250 and not np.any(labels == OUTER)
+
+
+def test_small_regions_removed():
+    sil = two_tube((40, 150), (220, 150), (360, 150))
+    yy, xx = np.mgrid[0:H, 0:W]
+    sil |= np.hypot(xx - 100, yy - 60) <= 5.5  # a blob that erodes to a speck
+    _, labels = extract_centerline(sil, CenterlineParams(5, 3, min_region_px=10))
+    assert not labels[50:70, 90:110].any()
+
+
+def test_empty_silhouette():
+    cl, labels = extract_centerline(np.zeros((H, W), bool), PARAMS)
+    assert not cl.any() and not labels.any()
+
+
+def test_params_from_tube_radii():
+    K = np.array([[2580.0, 0, 511.5], [0, 2580.0, 383.5], [0, 0, 1]])
+    cam = Camera("side", 1024, 768, K, T_cam_world=look_at([50, -300, 0], [50, 0, 0], [0, 0, -1]))
+    p = centerline_params_for(cam, 0.8, 0.5, [50, 0, 0])
+    # 0.8 mm and 0.5 mm at 300/2580 = 0.116 mm/px: 6.9 px and 4.3 px, one px less, floored.
+    assert (p.outer_radius_px, p.inner_radius_px) == (5, 3)
+
+
+def test_invalid_radii():
+    with pytest.raises(ValueError):
+        CenterlineParams(outer_radius_px=3, inner_radius_px=5)

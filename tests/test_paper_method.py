@@ -1,0 +1,133 @@
+"""The paper's method end to end on rendered views of a known two-tube robot."""
+import cv2
+import numpy as np
+import pytest
+
+from recon.camera import Camera, look_at
+from recon.errors import FrameError
+from recon.metrics import backbone_errors
+from recon.paper import PaperParams, camera_order, prepare_paper, reconstruct_paper
+from recon.rigcal import RigCalibration
+
+K = np.array([[2580.0, 0.0, 511.5], [0.0, 2580.0, 383.5], [0.0, 0.0, 1.0]])
+DIST = (-0.08, 0.1, 0.0005, -0.0007, 0.0)
+OUTER_MM, INNER_MM, OUTER_LENGTH_MM = 0.8, 0.5, 60.0
+
+
+def make_rig():
+    # "top" listed first: the method must still carve the side view first.
+    top = Camera("top", 1024, 768, K, dist=DIST, T_cam_world=look_at([50, 0, 300], [50, 0, 0], [0, -1, 0]))
+    side = Camera("side", 1024, 768, K, dist=DIST, T_cam_world=look_at([50, -300, 0], [50, 0, 0], [0, 0, -1]))
+    return RigCalibration({"top": top, "side": side}, base_point_world_mm=[0, 0, 0], insertion_axis_world=[1, 0, 0])
+
+
+def robot_backbone(n=1900):
+    """Base at the origin along +x for 35 mm, then bending at 1/60 mm^-1 about (0, 0.6, 0.8) to 95 mm."""
+    s = np.linspace(0.0, 95.0, n)
+    ds = s[1] - s[0]
+    pts = np.zeros((n, 3))
+    d = np.array([1.0, 0.0, 0.0])
+    axis = np.array([0.0, 0.6, 0.8])
+    for i in range(1, n):
+        if s[i] > 35.0:
+            d = d + ds / 60.0 * np.cross(axis, d)
+            d /= np.linalg.norm(d)
+        pts[i] = pts[i - 1] + d * ds
+    return s, pts
+
+
+def background_image():
+    yy, xx = np.mgrid[0:768, 0:1024].astype(np.float32)
+    return 120 + 40 * np.sin(xx / 90.0) * np.cos(yy / 70.0) + 0.03 * xx
+
+
+def render(cam, rng, gain=1.0, backbone=None):
+    """Camera frame: the background under ``gain`` with noise, and the robot drawn dark."""
+    img = background_image() * gain + rng.normal(0.0, 2.0, (768, 1024)).astype(np.float32)
+    if backbone is not None:
+        s, pts = backbone
+        uv, z = cam.project(pts)
+        mask = np.zeros((768, 1024), np.uint8)
+        radius_px = np.where(s <= OUTER_LENGTH_MM, OUTER_MM, INNER_MM) * K[0, 0] / z
+        for (u, v), r in zip(np.round(uv * 16).astype(int), np.round(radius_px * 16).astype(int)):
+            cv2.circle(mask, (int(u), int(v)), int(r), 255, -1, cv2.LINE_8, 4)
+        img[mask > 0] = 30.0
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def setup():
+    rng = np.random.default_rng(0)
+    rig = make_rig()
+    backgrounds = {
+        name: np.stack([render(cam, rng, gain=1.0 + 0.03 * rng.standard_normal()) for _ in range(10)])
+        for name, cam in rig.cameras.items()
+    }
+    params = PaperParams()
+    model = prepare_paper(rig, backgrounds, params)
+    return rig, model, params, rng
+
+
+def test_reconstructs_known_robot(setup):
+    rig, model, params, rng = setup
+    s, truth = backbone = robot_backbone()
+    frames = {name: render(cam, rng, gain=1.02, backbone=backbone) for name, cam in rig.cameras.items()}
+    rec = reconstruct_paper(model, frames, params)
+    voxel = float(rec.voxel_size_mm.max())
+    assert voxel < 1.0
+    e = backbone_errors(rec.points_world_mm, truth)
+    assert e["mean_error_mm"] <= voxel
+    assert e["tip_error_mm"] <= 2 * voxel
+    assert abs(e["length_error_mm"]) <= 2 * voxel
+    np.testing.assert_array_equal(rec.tip_world_mm, rec.points_world_mm[-1])
+    assert np.linalg.norm(rec.points_world_mm[0] - truth[0]) <= 2 * voxel  # base first
+    assert abs(rec.transition_s_mm - OUTER_LENGTH_MM) <= 2.0
+    assert np.linalg.norm(rec.transition_world_mm - truth[np.searchsorted(s, OUTER_LENGTH_MM)]) <= 2.0
+    assert set(rec.silhouettes) == set(rec.centerlines) == {"side", "top"}
+    assert rec.centerlines["side"].dtype == np.uint8 and set(np.unique(rec.centerlines["side"])) == {0, 1, 2}
+    assert rec.n_voxels > 100
+    assert set(rec.timings_ms) == {"background", "silhouette", "centerline", "bounding_box", "carve", "backbone", "total"}
+    assert rec.timings_ms["total"] >= max(v for k, v in rec.timings_ms.items() if k != "total")
+
+
+def test_camera_order_side_first(setup):
+    _, model, _, _ = setup
+    assert model.camera_names == ("side", "top")
+    assert camera_order(["a", "top", "b", "side"]) == ("side", "top", "a", "b")
+
+
+def test_frame_without_robot(setup):
+    rig, model, params, rng = setup
+    frames = {name: render(cam, rng, gain=1.01) for name, cam in rig.cameras.items()}
+    # Rejected for low contrast or, where the noise peaks above it, for the
+    # normalized noise breaking up into specks: never a noise silhouette.
+    with pytest.raises(FrameError, match=r"^side: no silhouette \((max difference|largest region) "):
+        reconstruct_paper(model, frames, params)
+
+
+def test_robot_leaving_the_view(setup):
+    rig, model, params, rng = setup
+    s, pts = robot_backbone()
+    shifted = (s, pts + np.array([40.0, 0.0, 0.0]))  # the tip runs off the right of both images
+    frames = {name: render(cam, rng, backbone=shifted) for name, cam in rig.cameras.items()}
+    with pytest.raises(FrameError, match=r"^side: robot leaves the view at the right border$"):
+        reconstruct_paper(model, frames, params)
+
+
+def test_bad_frames(setup):
+    rig, model, params, rng = setup
+    good = render(rig["side"], rng, backbone=robot_backbone())
+    with pytest.raises(FrameError, match=r"^top: no frame$"):
+        reconstruct_paper(model, {"side": good}, params)
+    with pytest.raises(FrameError, match=r"^side: frame is 512x384 but the background model is 1024x768$"):
+        reconstruct_paper(model, {"side": good[::2, ::2], "top": good}, params)
+    with pytest.raises(FrameError, match=r"^side: all-black frame$"):
+        reconstruct_paper(model, {"side": np.zeros_like(good), "top": good}, params)
+
+
+def test_prepare_needs_background_frames():
+    rig = make_rig()
+    with pytest.raises(ValueError, match=r"^side: need at least k\+1=6 background frames, got 3$"):
+        prepare_paper(rig, {"side": np.zeros((3, 768, 1024), np.uint8), "top": np.zeros((8, 768, 1024), np.uint8)})
+    with pytest.raises(ValueError, match=r"^side: no background frames$"):
+        prepare_paper(rig, {"top": np.zeros((8, 768, 1024), np.uint8)})
