@@ -28,3 +28,13 @@ def paper_twin(paper_scene):
     tw = Twin(paper_scene)
     yield tw
     tw.close()
+
+
+# Hypothesis profiles: "ci" is deterministic and bounded (the suite stays under 10 minutes on
+# 2 cores); "long" searches much further, by hand: HYPOTHESIS_PROFILE=long scripts/test.sh
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+settings.register_profile("ci", derandomize=True, deadline=None, max_examples=25,
+                          suppress_health_check=[HealthCheck.too_slow], print_blob=True)
+settings.register_profile("long", deadline=None, max_examples=500, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
