@@ -148,6 +148,7 @@ class SetRenderer:
         self._maps = {}
         self._ideal = {}
         self._set_cache = {}
+        self._set_depth_median = {}
         margin = 4
         for cam in cams:
             margin = max(margin, self._margin_needed(cam))
@@ -330,19 +331,47 @@ class SetRenderer:
         if not self._robot_nodes:
             return View(radiance=set_color, labels=None, depth_mm=None)
         self._place_camera(camera)
+        box = self._robot_box(camera)
+        if box is None:  # the robot is entirely outside this view
+            empty = (np.zeros(set_color.shape[:2], np.uint8), np.zeros(set_color.shape[:2], np.float32))
+            return View(radiance=set_color, labels=empty[0] if with_truth else None, depth_mm=empty[1] if with_truth else None)
+        (v0, v1), (u0, u1) = box
         m1, m2 = self._maps[camera.name]
+        m1, m2 = m1[v0:v1, u0:u1], m2[v0:v1, u0:u1]
         look = [node.mesh for node, _, _ in self._robot_nodes]
         # Robot alone on black: colours come premultiplied by coverage. The coverage itself
         # comes from the flat label pass (OSMesa contexts have no alpha channel to carry it).
+        # Only the robot's bounding box on the sensor is resampled and composited.
         rgb, _ = self._render_only(look, pyrender.RenderFlags.NONE)
         rgb = cv2.remap(rgb, m1, m2, cv2.INTER_LINEAR).astype(np.float32) * np.float32(1.0 / 255.0)
-        seg, labels, depth, hidden = self._truth_pass(m1, m2, set_depth)
+        seg, lab, dep, hidden = self._truth_pass(m1, m2, set_depth[v0:v1, u0:u1])
         visible = ~hidden
         alpha = np.minimum(seg.sum(axis=2, dtype=np.float32) * np.float32(1.0 / 255.0), 1.0) * visible
-        radiance = rgb * visible[..., None] + set_color * (1.0 - alpha)[..., None]
-        if not with_truth:
-            labels = depth = None
+        radiance = set_color
+        radiance[v0:v1, u0:u1] = rgb * visible[..., None] + set_color[v0:v1, u0:u1] * (1.0 - alpha)[..., None]
+        if with_truth:
+            labels = np.zeros(set_color.shape[:2], np.uint8)
+            depth = np.zeros(set_color.shape[:2], np.float32)
+            labels[v0:v1, u0:u1] = lab
+            depth[v0:v1, u0:u1] = dep
         return View(radiance=radiance, labels=labels, depth_mm=depth)
+
+    def _robot_box(self, camera: Camera, pad_px: int = 4):
+        """Sensor rows and columns ``((v0, v1), (u0, u1))`` that can hold the robot, or None."""
+        verts = np.concatenate([node.mesh.primitives[0].positions for node, _, _ in self._robot_nodes])
+        uv, z = camera.project(verts[::3].astype(np.float64))
+        uv = uv[z > 0]
+        if uv.size == 0:
+            return None
+        u0 = int(np.floor(np.nanmin(uv[:, 0]))) - pad_px
+        u1 = int(np.ceil(np.nanmax(uv[:, 0]))) + pad_px + 1
+        v0 = int(np.floor(np.nanmin(uv[:, 1]))) - pad_px
+        v1 = int(np.ceil(np.nanmax(uv[:, 1]))) + pad_px + 1
+        u0, v0 = max(u0, 0), max(v0, 0)
+        u1, v1 = min(u1, camera.width), min(v1, camera.height)
+        if u1 <= u0 or v1 <= v0:
+            return None
+        return (v0, v1), (u0, u1)
 
     @staticmethod
     def _hidden(z_robot: np.ndarray, z_set: np.ndarray) -> np.ndarray:
@@ -385,30 +414,29 @@ class SetRenderer:
         return radiance.astype(np.float32) * np.float32(1.0 / 255.0), depth
 
     def _set_maps(self, camera: Camera, z_nominal: np.ndarray) -> tuple:
-        """Sensor pixel -> position on the nominal canvas, through lens distortion and jitter."""
+        """Sensor pixel -> position on the nominal canvas, through lens distortion and jitter.
+
+        The jitter (a camera motion of about a pixel) is applied as the homography of
+        a fronto-parallel plane at the set's median depth: the parallax it neglects,
+        between the robot's depth and the backdrop's, is below 0.1 px for the jitter
+        of a rigid camera mount (0.035 mm at 300 vs 370 mm: 0.06 px).
+        """
         mx, my = self._ideal[camera.name]
         nominal = self.scene.rig[camera.name]
         D = camera.T_cam_world @ nominal.T_world_cam  # nominal camera frame -> jittered camera frame
         if np.allclose(D, np.eye(4), atol=1e-12):
             return mx, my
-        # Back-project each ideal pixel of the jittered camera with the set's depth there
-        # (the nominal depth at the same pixel: jitter moves the image by about a pixel),
-        # move the point into the nominal camera and project it.
-        K = camera.K
-        m = np.float32(self.margin)
-        zz = cv2.remap(z_nominal, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-        zz[zz <= 0] = 1e4
-        x = (mx - m - np.float32(K[0, 2])) * np.float32(1.0 / K[0, 0]) * zz
-        y = (my - m - np.float32(K[1, 2])) * np.float32(1.0 / K[1, 1]) * zz
-        Rt = D[:3, :3].T.astype(np.float32)
-        t = D[:3, 3].astype(np.float32)
-        xs, ys, zs = x - t[0], y - t[1], zz - t[2]
-        X = Rt[0, 0] * xs + Rt[0, 1] * ys + Rt[0, 2] * zs
-        Y = Rt[1, 0] * xs + Rt[1, 1] * ys + Rt[1, 2] * zs
-        Z = Rt[2, 0] * xs + Rt[2, 1] * ys + Rt[2, 2] * zs
-        u = np.float32(K[0, 0]) * X / Z + np.float32(K[0, 2]) + m
-        v = np.float32(K[1, 1]) * Y / Z + np.float32(K[1, 2]) + m
-        return u, v
+        if camera.name not in self._set_depth_median:
+            self._set_depth_median[camera.name] = float(np.median(z_nominal[z_nominal > 0]))
+        d = self._set_depth_median[camera.name]
+        # X_nominal = R^T (X_jittered - t), with X_jittered = d K^-1 p on the plane z = d.
+        Kc = camera.K.copy()
+        Kc[:2, 2] += self.margin  # canvas coordinates
+        R, t = D[:3, :3], D[:3, 3]
+        H = Kc @ R.T @ (np.eye(3) - np.outer(t, [0.0, 0.0, 1.0]) / d) @ np.linalg.inv(Kc)
+        pts = np.stack([mx, my], axis=-1).reshape(-1, 1, 2)
+        out = cv2.perspectiveTransform(pts, H).reshape(mx.shape + (2,))
+        return out[..., 0], out[..., 1]
 
     def _downsample(self, image: np.ndarray) -> np.ndarray:
         """Average a supersampled canvas down to the canvas (area filter)."""
