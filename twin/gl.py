@@ -63,4 +63,8 @@ def select_platform(preferred: str | None = None) -> str:
             )
         wanted = avail[0]
     os.environ["PYOPENGL_PLATFORM"] = wanted
+    # pyrender imports its (unused) pyglet viewer, which needs X11 libraries unless pyglet
+    # runs headless on EGL; a bare server has EGL but not libXrender.
+    if "egl" in available_platforms():
+        os.environ.setdefault("PYGLET_HEADLESS", "true")
     return wanted
