@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .robot import Robot
+from .robot import Joints, Robot
 from .scene import Scene
 from .simulator import Twin, TwinFrame
 
@@ -40,7 +40,7 @@ def truth_arrays(frame: TwinFrame) -> dict:
     return out
 
 
-def render_session(scene: Scene, writer, progress=None) -> None:
+def render_session(scene: Scene, writer, progress=None, joint_offsets=None) -> None:
     """Render the scene's background frames, then its robot frames, into ``writer``.
 
     Parameters
@@ -49,6 +49,11 @@ def render_session(scene: Scene, writer, progress=None) -> None:
     writer : rig.session.SessionWriter
         Receives each frame as soon as it is rendered (crash-safe).
     progress : callable(str stage, int done, int total), optional
+    joint_offsets : object with ``extension_mm`` and ``rotation_deg`` (one per tube), optional
+        An actuator that is off by these: the twin renders (and ``truth/``
+        stores) the scene's joints, while ``frames.csv`` records the commanded
+        joints, scene joints minus the offsets (true = recorded + offset, as
+        ``twin.modelfit.JointOffsets`` and ``ctr-bench fit`` read it).
     """
     with Twin(scene) as tw:
         nb = scene.background_frames
@@ -59,6 +64,12 @@ def render_session(scene: Scene, writer, progress=None) -> None:
         n = len(scene.joints)
         for i in range(n):
             f = tw.frame(i)
-            writer.add_frame(i, f.images, t_s=i * scene.frame_interval_s, joints=f.joints, truth=truth_arrays(f))
+            recorded = f.joints
+            if joint_offsets is not None:
+                recorded = Joints(
+                    extension_mm=tuple(np.subtract(f.joints.extension_mm, joint_offsets.extension_mm)),
+                    rotation_deg=tuple(np.subtract(f.joints.rotation_deg, joint_offsets.rotation_deg)),
+                )
+            writer.add_frame(i, f.images, t_s=i * scene.frame_interval_s, joints=recorded, truth=truth_arrays(f))
             if progress:
                 progress("frames", i + 1, n)
