@@ -11,6 +11,14 @@ def add_method_options(p) -> None:
     p.add_argument("--params", default=None, metavar="FILE", help="TOML parameter file (e.g. written by ctr-bench tune)")
 
 
+def add_report_options(p) -> None:
+    """--no-report and --live, shared by run, reconstruct and experiment."""
+    p.add_argument("--no-report", action="store_true",
+                   help="do not build OUT/report/index.html and OUT/meshes (ctr-bench report OUT builds them later)")
+    p.add_argument("--live", action="store_true",
+                   help="show images, backbones and errors live in a rerun viewer (needs the 'live' extra: rerun-sdk)")
+
+
 def method_params(args):
     """The parameter dataclass for ``args.method``, from ``--params`` when given."""
     from recon.methods import get_method
@@ -34,10 +42,20 @@ def reconstruct_and_report(session_dir: Path, out: Path, args) -> dict:
     params = method_params(args)
     one_core()
     progress = Progress(enabled=not getattr(args, "quiet", False))
-    summary = reconstruct_session(session_dir, out, method=args.method, params=params, progress=progress)
+    live = None
+    if getattr(args, "live", False):
+        from rig.live import LiveLogger
+
+        live = LiveLogger()
+    summary = reconstruct_session(session_dir, out, method=args.method, params=params,
+                                  progress=live.watch(session_dir, out, progress) if live else progress)
     progress.close()
     print(format_table(summary))
     print(f"\noutputs in {out}: frames/*.csv, backbones.npz, summary.json")
+    if not getattr(args, "no_report", False):
+        from rig.report import report_or_warn
+
+        report_or_warn(out)
     return summary
 
 
@@ -57,4 +75,5 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--json", action="store_true", help="also print the summary (without per-frame list) as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_report_options(p)
     p.set_defaults(func=_run)

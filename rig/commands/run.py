@@ -4,7 +4,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from .reconstruct import add_method_options, reconstruct_and_report
+from .reconstruct import add_method_options, add_report_options, reconstruct_and_report
 from .render import add_scene_options, load_scene_from_args, render_scene_to
 
 
@@ -30,5 +30,6 @@ def register(sub) -> None:
                        "into OUT, score against the ground truth and print a per-frame table.")
     add_scene_options(p)
     add_method_options(p)
+    add_report_options(p)
     p.add_argument("--out", default=None, help="output directory (default out/<scene>-<timestamp>)")
     p.set_defaults(func=_run)
