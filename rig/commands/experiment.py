@@ -12,6 +12,8 @@ import signal
 import sys
 from pathlib import Path
 
+from .reconstruct import add_report_options
+
 
 def _sigterm(signum, frame):
     raise KeyboardInterrupt
@@ -82,6 +84,17 @@ def _run(args) -> int:
     if (out / "session.json").exists():
         raise CLIError(f"{out}: already holds a session; choose another --out or remove it")
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
+    on_frame = None
+    if args.live:
+        if not args.reconstruct:
+            raise CLIError("--live needs --reconstruct METHOD (it shows the live reconstruction)")
+        from rig.live import LiveLogger
+
+        # The live logger reads what the runner has just written to OUT/live after each frame.
+        watcher = LiveLogger().watch(out, out / "live")
+        if watcher is not None:
+            def on_frame(index, pair, joints, result):
+                watcher("experiment", index + 1, index + 1)
     old = signal.signal(signal.SIGTERM, _sigterm)
     runner = None
     status = 0
@@ -90,7 +103,7 @@ def _run(args) -> int:
             print(f"rig {spec.name!r}: cameras {rig.cameras.describe()}, actuator {rig.actuator!r}; "
                   f"recording into {out}", flush=True)
             runner = ExperimentRunner(rig, seq, out, method=args.reconstruct, params=params, log=log,
-                                      assume_yes=args.yes)
+                                      assume_yes=args.yes, on_frame=on_frame)
             runner.run()
     except KeyboardInterrupt:
         status = 130
@@ -104,6 +117,10 @@ def _run(args) -> int:
         signal.signal(signal.SIGTERM, old)
     if runner is not None:
         _report(runner, out)
+        if args.reconstruct and not args.no_report and (out / "live" / "summary.json").exists():
+            from rig.report import report_or_warn
+
+            report_or_warn(out / "live")
     return status
 
 
@@ -143,4 +160,5 @@ def register(sub) -> None:
                    help="do not ask the operator to clear the views for background frames (they are clear already)")
     p.add_argument("--dry-run", action="store_true", help="check the files and print the steps; open nothing")
     p.add_argument("--quiet", action="store_true", help="no per-frame lines")
+    add_report_options(p)
     p.set_defaults(func=_run)
