@@ -1,0 +1,230 @@
+"""``ctr-bench calibrate``: the rig calibration file from checkerboard images (or from existing calibrations).
+
+Modes (exactly one)::
+
+    ctr-bench calibrate --render scenes/calibration.toml --out DIR      twin images in the folder layout
+    ctr-bench calibrate DIR --board 9x6 --square-mm 5 --out rig.json   calibrate from a folder
+    ctr-bench calibrate --import-opencv STEREO.yaml --world-from W --out rig.json
+    ctr-bench calibrate --import-ros SIDE.yaml TOP.yaml --world-from W --out rig.json
+
+The folder layout, the world-frame convention and the outputs are described in
+docs/calibration.md.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+DEFAULT_CAL_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "calibration.toml"
+
+
+def _vec3(values, option: str):
+    if values is None:
+        return None
+    return [float(v) for v in values]
+
+
+def _board_meta(folder: Path | None) -> dict:
+    """``board.json`` of a calibration folder (the twin writes one; a lab may), or {}."""
+    if folder is None:
+        return {}
+    path = folder / "board.json"
+    if not path.is_file():
+        return {}
+    try:
+        meta = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path}: expected a JSON object")
+    return meta
+
+
+def _board(args, meta: dict, required: bool = True):
+    from recon.calibration import BoardSpec
+
+    text = args.board or (f"{meta['cols']}x{meta['rows']}" if "cols" in meta and "rows" in meta else None)
+    square = args.square_mm if args.square_mm is not None else meta.get("square_mm")
+    if text is None or square is None:
+        if not required:
+            return None
+        raise ValueError("give the board: --board COLSxROWS (inner corners, e.g. 9x6) and --square-mm (or a board.json in the folder)")
+    return BoardSpec.parse(text, float(square))
+
+
+def _placement(args, meta: dict) -> dict:
+    return {
+        "world_origin_mm": _vec3(args.world_origin_mm, "--world-origin-mm") or meta.get("world_origin_mm", [0.0, 0.0, 0.0]),
+        "base_point_world_mm": _vec3(args.base_point_mm, "--base-point-mm") or meta.get("base_point_world_mm", [0.0, 0.0, 0.0]),
+        "insertion_axis_world": _vec3(args.insertion_axis, "--insertion-axis") or meta.get("insertion_axis_world", [1.0, 0.0, 0.0]),
+    }
+
+
+def _params(args):
+    from recon.calibration import CalibrationParams
+
+    return CalibrationParams(distortion=args.distortion, joint_refinement=not args.no_joint_refinement, min_views=args.min_views)
+
+
+# ----------------------------------------------------------------------------- modes
+def _render(args) -> int:
+    from rig.progress import Progress
+    from twin.board import load_calibration_scene, render_calibration, write_capture
+
+    if args.out is None:
+        raise ValueError("--render needs --out DIR (the folder to write the images into)")
+    cal = load_calibration_scene(args.render)
+    out = Path(args.out)
+    progress = Progress(enabled=not args.quiet)
+    capture = render_calibration(cal, progress=progress)
+    progress.close()
+    write_capture(capture, out)
+    n = sum(len(v) for v in capture.views.values()) + 2 * len(capture.stereo) + sum(len(v) for v in capture.world.values())
+    print(f"rendered {n} calibration images of a {cal.board.label} board ({cal.board.square_mm:g} mm squares) into {out}")
+    print(f"calibrate them with: ctr-bench calibrate {out} --out {out / 'rig.json'}")
+    return 0
+
+
+def _calibrate_folder(args) -> int:
+    import cv2
+
+    from recon.calibration import calibrate_rig, draw_coverage, load_calibration_folder, save_report
+    from recon.calibration_io import export_rig_opencv
+    from recon.rigcal import load_rig_calibration, save_rig_calibration
+    from rig.progress import Progress
+
+    folder = Path(args.folder)
+    if not folder.is_dir():
+        raise ValueError(f"{folder}: no such calibration folder")
+    meta = _board_meta(folder)
+    board = _board(args, meta)
+    placement = _placement(args, meta)
+    images = load_calibration_folder(folder)
+    progress = Progress(enabled=not args.quiet)
+    rig, report = calibrate_rig(images, board, _params(args), progress=progress, **placement)
+    progress.close()
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    save_rig_calibration(out, rig)
+    written = [out]
+    written += export_rig_opencv(rig, out.with_suffix(""))
+    report_path = out.parent / "calibration_report.json"
+    save_report(report_path, report)
+    written.append(report_path)
+    for cam, cal in report.cameras.items():
+        background = images.views[cam][0][1] if images.views.get(cam) else None
+        path = out.parent / f"calibration_coverage_{cam}.png"
+        if not cv2.imwrite(str(path), draw_coverage(cal, board, background)):
+            raise OSError(f"cannot write {path}")
+        written.append(path)
+    truth = None
+    truth_path = folder / "truth" / "rig.json"
+    if truth_path.is_file():
+        truth = load_rig_calibration(truth_path)
+    print(report.summary(truth))
+    print("wrote " + ", ".join(str(p) for p in written))
+    return 0
+
+
+def _world_images(path: Path):
+    """World-frame images from --world-from: a calibration folder or one image (None for a world file)."""
+    from recon.calibration import IMAGE_SUFFIXES, CalibrationImages, load_calibration_folder, read_image
+
+    if path.is_dir():
+        return load_calibration_folder(path, extrinsics_only=True)
+    if path.suffix.lower() in IMAGE_SUFFIXES:
+        return CalibrationImages(views={}, stereo=[], world={"top": [(path.name, read_image(path))]}, source=str(path))
+    return None
+
+
+def _import(args) -> int:
+    from recon.calibration import calibrate_extrinsics
+    from recon.calibration_io import load_opencv_stereo, load_ros_camera_info, load_world_file, rig_from_parts
+    from recon.rigcal import save_rig_calibration
+
+    if args.world_from is None:
+        raise ValueError("importing needs --world-from: a world file (T_top_world), a world-frame image or a calibration folder")
+    if args.import_opencv:
+        st = load_opencv_stereo(args.import_opencv)
+        side, top, T_side_top = st["side"], st["top"], st["T_side_top"]
+    else:
+        side = load_ros_camera_info(args.import_ros[0], "side")
+        top = load_ros_camera_info(args.import_ros[1], "top")
+        T_side_top = None
+    world_from = Path(args.world_from)
+    if not world_from.exists():
+        raise ValueError(f"{world_from}: not found (--world-from)")
+    images = _world_images(world_from)
+    meta = _board_meta(world_from if world_from.is_dir() else None)
+    placement = _placement(args, meta)
+    T_side_world = None
+    if images is None:
+        w = load_world_file(world_from)
+        T_top_world = w.get("T_top_world")
+        T_side_top = w.get("T_side_top", T_side_top)
+        T_side_world = w.get("T_side_world")
+        if T_top_world is None:
+            raise ValueError(f"{world_from}: missing T_top_world")
+        if T_side_top is None and T_side_world is None:
+            raise ValueError(f"{world_from}: the ROS files hold no pose: give T_side_top or T_side_world in the world file")
+    else:
+        board = _board(args, meta)
+        T_side_top, world, _ = calibrate_extrinsics(side, top, images, board, _params(args), placement["world_origin_mm"], T_side_top)
+        T_top_world = world.T_top_world
+        print(f"world frame from {world.view.name}: RMS {world.rms_px:.3f} px")
+    rig = rig_from_parts(side, top, T_top_world, T_side_top, T_side_world,
+                         placement["base_point_world_mm"], placement["insertion_axis_world"])
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    save_rig_calibration(out, rig)
+    print(f"wrote {out}")
+    return 0
+
+
+def _run(args) -> int:
+    modes = [m for m, on in (("folder", args.folder), ("--render", args.render), ("--import-opencv", args.import_opencv),
+                             ("--import-ros", args.import_ros)) if on]
+    if len(modes) != 1:
+        raise ValueError("give exactly one of: a calibration folder, --render SCENE, --import-opencv FILE, --import-ros SIDE TOP"
+                         + (f" (got {', '.join(modes)})" if modes else ""))
+    if args.render:
+        return _render(args)
+    if args.out is None:
+        raise ValueError("--out is required (the rig calibration JSON to write)")
+    if args.folder:
+        return _calibrate_folder(args)
+    return _import(args)
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "calibrate",
+        help="calibrate the rig from checkerboard images (or import OpenCV/ROS calibrations)",
+        description="Calibrate the two-camera rig as Morimoto & Sketch did: each camera's intrinsics from its checkerboard "
+        "views, T_side_top from stereo pairs, T_top_world from the board in the world-frame pose, T_side_world = "
+        "T_side_top @ T_top_world; then one joint refinement. Writes the rig calibration JSON that reconstruct reads, an "
+        "OpenCV YAML export, calibration_report.json and corner-coverage images. See docs/calibration.md.",
+    )
+    p.add_argument("folder", nargs="?", default=None, help="calibration folder (side/, top/, stereo/side, stereo/top, world/top.png)")
+    p.add_argument("--render", metavar="SCENE", default=None, help=f"render the twin's calibration images of a calibration scene "
+                   f"(e.g. {DEFAULT_CAL_SCENE.relative_to(DEFAULT_CAL_SCENE.parents[1])}) into --out DIR")
+    p.add_argument("--import-opencv", metavar="STEREO_YAML", default=None, help="build the rig from an OpenCV stereo file (M1 D1 = top, M2 D2 = side, R T)")
+    p.add_argument("--import-ros", metavar=("SIDE_YAML", "TOP_YAML"), nargs=2, default=None, help="build the rig from two ROS camera_info files")
+    p.add_argument("--world-from", metavar="PATH", default=None,
+                   help="for imports: a world file (YAML/JSON with T_top_world, and T_side_top or T_side_world for ROS), "
+                   "a world-frame image of the top camera, or a calibration folder (world/ and stereo/)")
+    p.add_argument("--out", default=None, help="rig calibration JSON to write (with --render: the folder to create)")
+    p.add_argument("--board", default=None, help="inner corners COLSxROWS, e.g. 9x6 (default: the folder's board.json)")
+    p.add_argument("--square-mm", type=float, default=None, help="square size in mm (default: the folder's board.json)")
+    p.add_argument("--world-origin-mm", nargs=3, type=float, metavar=("X", "Y", "Z"), default=None,
+                   help="world position of the world board's first inner corner (default 0 0 0: the board is the world frame)")
+    p.add_argument("--base-point-mm", nargs=3, type=float, metavar=("X", "Y", "Z"), default=None,
+                   help="where the robot leaves the actuation unit, world mm (default 0 0 0)")
+    p.add_argument("--insertion-axis", nargs=3, type=float, metavar=("X", "Y", "Z"), default=None,
+                   help="world direction of insertion (default 1 0 0)")
+    p.add_argument("--distortion", default="auto",
+                   help="estimated distortion terms: auto (k1 k2 p1 p2 k3, insignificant ones held at 0) or e.g. 'k1 k2 p1 p2 k3', 'k1 k2'")
+    p.add_argument("--no-joint-refinement", action="store_true", help="stop after the OpenCV stages (as the paper did)")
+    p.add_argument("--min-views", type=int, default=5, help="usable views each camera needs (default 5)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_run)

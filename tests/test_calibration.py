@@ -1,0 +1,348 @@
+"""Rig calibration from checkerboard images, proven on twin-rendered boards with known truth (issue 5).
+
+One reduced capture of scenes/calibration.toml (12 views per camera, 8 stereo pairs,
+the world board) is rendered once; the accuracy targets are checked against the
+rig scene's true cameras, then the bad inputs, the formats and the command line.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from recon.calibration import (
+    BoardSpec,
+    CalibrationImages,
+    CalibrationParams,
+    calibrate_camera,
+    calibrate_rig,
+    calibrate_stereo,
+    compose_side_world,
+    detect_board,
+    load_calibration_folder,
+    pose_difference,
+)
+from recon.calibration_io import (
+    export_rig_opencv,
+    load_opencv_camera,
+    load_opencv_stereo,
+    load_ros_camera_info,
+    load_world_file,
+    rig_from_parts,
+    save_opencv_camera,
+    save_opencv_stereo,
+    save_ros_camera_info,
+    save_world_file,
+)
+from recon.camera import invert_transform
+from recon.rigcal import load_rig_calibration, save_rig_calibration
+
+from conftest import SCENES
+
+
+@pytest.fixture(scope="module")
+def cal_scene():
+    from twin.board import load_calibration_scene
+
+    cal = load_calibration_scene(SCENES / "calibration.toml")
+    # reduced for CI: 12 views per camera + 8 stereo pairs (each also an intrinsics view)
+    return replace(cal, views=replace(cal.views, count=12), stereo=replace(cal.stereo, count=8))
+
+
+@pytest.fixture(scope="module")
+def capture(cal_scene):
+    from twin.board import render_calibration
+
+    return render_calibration(cal_scene)
+
+
+@pytest.fixture(scope="module")
+def calibrated(capture):
+    return calibrate_rig(capture.images(), capture.board, world_origin_mm=capture.world_origin_mm,
+                         base_point_world_mm=capture.truth.base_point_world_mm,
+                         insertion_axis_world=capture.truth.insertion_axis_world)
+
+
+@pytest.fixture(scope="module")
+def folder(capture, tmp_path_factory):
+    from twin.board import write_capture
+
+    return write_capture(capture, tmp_path_factory.mktemp("calib") / "capture")
+
+
+# ----------------------------------------------------------------------------- accuracy
+def test_intrinsics_match_truth(calibrated, capture):
+    rig, report = calibrated
+    for name in ("side", "top"):
+        K, Kt = rig[name].K, capture.truth[name].K
+        assert abs(K[0, 0] / Kt[0, 0] - 1) < 0.003, f"{name}: fx {K[0, 0]:.2f} vs {Kt[0, 0]:.2f}"
+        assert abs(K[1, 1] / Kt[1, 1] - 1) < 0.003, f"{name}: fy {K[1, 1]:.2f} vs {Kt[1, 1]:.2f}"
+        assert np.hypot(*(K[:2, 2] - Kt[:2, 2])) < 2.0, f"{name}: principal point {K[:2, 2]} vs {Kt[:2, 2]}"
+        assert report.cameras[name].rms_px < 0.1
+
+
+def test_side_world_pose_matches_truth(calibrated, capture):
+    rig, report = calibrated
+    d_mm, d_deg = pose_difference(rig["side"].T_cam_world, capture.truth["side"].T_cam_world)
+    assert d_mm < 0.2 and d_deg < 0.05, f"T_side_world off by {d_mm:.3f} mm, {d_deg:.4f} deg"
+    d_mm, d_deg = pose_difference(rig["top"].T_cam_world, capture.truth["top"].T_cam_world)
+    assert d_mm < 0.2 and d_deg < 0.05, f"T_top_world off by {d_mm:.3f} mm, {d_deg:.4f} deg"
+    # eq. (1) holds in the output
+    np.testing.assert_allclose(report.T_side_world, compose_side_world(report.stereo.T_side_top, report.world.T_top_world))
+    np.testing.assert_allclose(rig["side"].T_cam_world, report.T_side_world)
+
+
+def test_calibrated_rig_projects_the_workspace_like_the_true_one(calibrated, capture):
+    rig, _ = calibrated
+    rng = np.random.default_rng(0)
+    pts = rng.uniform([0.0, -25.0, -25.0], [100.0, 25.0, 25.0], (200, 3))  # the robot's workspace (mm)
+    for name in ("side", "top"):
+        a, _ = rig[name].project(pts)
+        b, _ = capture.truth[name].project(pts)
+        assert np.abs(a - b).max() < 0.5, name
+    np.testing.assert_allclose(rig.base_point_world_mm, capture.truth.base_point_world_mm)
+
+
+def test_rig_file_round_trip_and_report(calibrated, tmp_path):
+    rig, report = calibrated
+    save_rig_calibration(tmp_path / "rig.json", rig)
+    back = load_rig_calibration(tmp_path / "rig.json")
+    for name in ("side", "top"):
+        np.testing.assert_allclose(back[name].K, rig[name].K)
+        np.testing.assert_allclose(back[name].T_cam_world, rig[name].T_cam_world)
+    d = json.loads(json.dumps(report.to_dict()))
+    assert d["refined_jointly"] is True
+    for name in ("side", "top"):
+        views = d["cameras"][name]["views"]
+        assert len(views) == 20 and all("rms_px" in v for v in views if v["used"])
+    assert d["stereo"]["rms_px"] < 0.1 and len(d["stereo"]["pairs"]) == 8
+    text = report.summary()
+    assert "stereo: 8 of 8 pairs used" in text
+
+
+def test_world_frame_convention(capture, cal_scene):
+    """The first inner corner is the world board's origin, seen right way round even with the image turned over."""
+    board = capture.board
+    img = capture.world["top"][0][1]
+    top = capture.truth["top"]
+    origin_px, _ = top.project(capture.world_origin_mm)
+    x_px, _ = top.project(capture.world_origin_mm + [board.square_mm, 0, 0])
+    det = detect_board(img, board, name="world")
+    assert det.oriented
+    assert np.linalg.norm(det.corners[0] - origin_px[0]) < 0.5
+    assert np.linalg.norm(det.corners[1] - x_px[0]) < 0.5  # x runs along the cols
+    h, w = img.shape[:2]
+    turned = detect_board(img[::-1, ::-1].copy(), board, name="turned")
+    np.testing.assert_allclose(turned.corners[0], [w - 1 - origin_px[0, 0], h - 1 - origin_px[0, 1]], atol=0.5)
+
+
+# ----------------------------------------------------------------------------- rejection and bad input
+@pytest.fixture(scope="module")
+def side_dets(capture):
+    return [detect_board(im, capture.board, name=name) for name, im in capture.images().views["side"]]
+
+
+def test_rejects_blurred_and_outlier_views(capture, side_dets):
+    board = capture.board
+    name, img = capture.images().views["side"][0]
+    blurred = detect_board(cv2.GaussianBlur(img, (0, 0), 2.5), board, name=name)
+    assert blurred.found and not blurred.usable and blurred.reason.startswith("blurred")
+    dets = list(side_dets)
+    corners = dets[3].corners.copy()
+    corners[:10] += 2.5  # a corrupted detection
+    dets[3] = replace(dets[3], corners=corners)
+    dets[0] = blurred
+    cal = calibrate_camera(dets, board, "side")
+    reasons = {v.name: v.reason for v in cal.rejected}
+    assert set(reasons) == {dets[0].name, dets[3].name}
+    assert reasons[dets[0].name].startswith("blurred")
+    assert reasons[dets[3].name].startswith("reprojection outlier")
+    assert cal.rms_px < 0.1
+
+
+def test_rejects_too_oblique_views(capture, side_dets):
+    cal = calibrate_camera(side_dets, capture.board, "side", CalibrationParams(max_oblique_deg=30.0))
+    oblique = [v for v in cal.rejected if v.reason.startswith("too oblique")]
+    assert oblique and all(v.oblique_deg > 30.0 for v in oblique)
+    assert all(v.oblique_deg <= 30.0 for v in cal.used)
+
+
+def test_too_few_views(capture, side_dets):
+    dets = side_dets[:3] + [replace(side_dets[3], reason="blurred: edges 7.0 px wide (limit 5 px)")] + side_dets[4:5]
+    with pytest.raises(ValueError, match=r"^side: only 4 usable views of the 11x8 board \(need at least 5\); rejected: 1 blurred$"):
+        calibrate_camera(dets, capture.board, "side")
+
+
+def test_mixed_image_sizes(capture, side_dets):
+    dets = list(side_dets[:6])
+    small = cv2.resize(capture.images().views["side"][2][1], (640, 480))
+    dets[2] = detect_board(small, capture.board, name="side/002.png")
+    with pytest.raises(ValueError, match=r"mixed image sizes .*1024x768 \(5 images\) and 640x480 \(1, e.g. side/002.png\)"):
+        calibrate_camera(dets, capture.board, "side")
+
+
+def test_wrong_board_size_says_which_board_is_there(capture):
+    imgs = capture.images()
+    few = CalibrationImages(views={c: v[:4] for c, v in imgs.views.items()}, stereo=imgs.stereo[:1], world=imgs.world, source="t")
+    with pytest.raises(ValueError) as exc:
+        calibrate_rig(few, BoardSpec(9, 6, 6.0))
+    msg = str(exc.value)
+    assert "\n" not in msg
+    assert msg == "no 9x6 board found in any of 4 images of side/ — is --board right? a 11x8 board was found in 4 of them"
+
+
+def test_no_board_anywhere(capture):
+    blank = np.full((768, 1024), 128, np.uint8)
+    imgs = CalibrationImages(views={"side": [(f"side/{i}.png", blank) for i in range(3)], "top": [("top/0.png", blank)]},
+                             stereo=[("0.png", {"side": blank, "top": blank})], world={"top": [("world/top.png", blank)]})
+    with pytest.raises(ValueError, match=r"^no 11x8 board found in any of 3 images of side/ .* no common board size was found either"):
+        calibrate_rig(imgs, capture.board)
+
+
+def test_symmetric_board_cannot_do_stereo(calibrated):
+    _, report = calibrated
+    with pytest.raises(ValueError, match="looks the same turned by 180 degrees"):
+        calibrate_stereo(report.cameras["side"], report.cameras["top"], [], BoardSpec(8, 6, 5.0))
+
+
+def test_board_spec_validation():
+    assert BoardSpec.parse("9x6", 5).size == (9, 6)
+    with pytest.raises(ValueError, match="COLSxROWS"):
+        BoardSpec.parse("nine by six", 5)
+    with pytest.raises(ValueError, match="square"):
+        BoardSpec(7, 7, 5.0)
+    with pytest.raises(ValueError, match="> 0 mm"):
+        BoardSpec(9, 6, 0.0)
+
+
+def test_folder_errors(tmp_path, folder):
+    with pytest.raises(ValueError, match="no such calibration folder"):
+        load_calibration_folder(tmp_path / "missing")
+    (tmp_path / "empty" / "side").mkdir(parents=True)
+    with pytest.raises(ValueError, match=r"empty/side: no images \(.png"):
+        load_calibration_folder(tmp_path / "empty")
+    images = load_calibration_folder(folder)
+    assert len(images.views["side"]) == 12 and len(images.stereo) == 8 and len(images.world["top"]) == 4
+
+
+# ----------------------------------------------------------------------------- formats
+def test_opencv_and_ros_round_trips(calibrated, tmp_path):
+    rig, report = calibrated
+    side, top = rig["side"], rig["top"]
+    save_opencv_camera(tmp_path / "side.yaml", side)
+    back = load_opencv_camera(tmp_path / "side.yaml")
+    assert back.name == "side" and back.image_size == side.image_size
+    np.testing.assert_allclose(back.K, side.K)
+    np.testing.assert_allclose(back.dist, side.dist)
+    np.testing.assert_allclose(back.T_cam_world, side.T_cam_world)
+
+    T_side_top = side.T_cam_world @ invert_transform(top.T_cam_world)
+    save_opencv_stereo(tmp_path / "stereo.yaml", side, top, T_side_top, top.T_cam_world)
+    st = load_opencv_stereo(tmp_path / "stereo.yaml")
+    np.testing.assert_allclose(st["T_side_top"], T_side_top, atol=1e-12)
+    np.testing.assert_allclose(st["top"].K, top.K)
+    np.testing.assert_allclose(st["side"].dist, side.dist)
+    rebuilt = rig_from_parts(st["side"], st["top"], st["T_top_world"], st["T_side_top"])
+    np.testing.assert_allclose(rebuilt["side"].T_cam_world, side.T_cam_world, atol=1e-9)
+
+    save_ros_camera_info(tmp_path / "top_ros.yaml", top)
+    ros = load_ros_camera_info(tmp_path / "top_ros.yaml")
+    np.testing.assert_allclose(ros.K, top.K)
+    np.testing.assert_allclose(ros.dist, top.dist)
+    assert ros.image_size == top.image_size
+    text = (tmp_path / "top_ros.yaml").read_text()
+    for key in ("image_width", "camera_matrix", "distortion_model: plumb_bob", "rectification_matrix", "projection_matrix"):
+        assert key in text
+
+    save_world_file(tmp_path / "world.yaml", top.T_cam_world, T_side_top)
+    w = load_world_file(tmp_path / "world.yaml")
+    np.testing.assert_allclose(w["T_top_world"], top.T_cam_world)
+    paths = export_rig_opencv(rig, tmp_path / "rig")
+    assert [p.name for p in paths] == ["rig_stereo.yaml", "rig_side.yaml", "rig_top.yaml"]
+
+
+def test_format_errors_name_file_and_key(tmp_path):
+    bad = tmp_path / "cam.yaml"
+    bad.write_text("image_width: 1024\nimage_height: 768\ncamera_name: x\n")
+    with pytest.raises(ValueError, match=r"cam.yaml: missing camera_matrix"):
+        load_ros_camera_info(bad)
+    bad.write_text("image_width: 1024\nimage_height: 768\ndistortion_model: equidistant\n"
+                   "camera_matrix: {rows: 3, cols: 3, data: [1, 0, 0, 0, 1, 0, 0, 0, 1]}\n")
+    with pytest.raises(ValueError, match="only plumb_bob"):
+        load_ros_camera_info(bad)
+    fs = cv2.FileStorage(str(tmp_path / "st.yaml"), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 1024)
+    fs.write("image_height", 768)
+    fs.write("M1", np.eye(3))
+    fs.release()
+    with pytest.raises(ValueError, match=r"st.yaml: missing M2"):
+        load_opencv_stereo(tmp_path / "st.yaml")
+    (tmp_path / "w.json").write_text(json.dumps({"T_side_top": np.eye(4).tolist()}))
+    with pytest.raises(ValueError, match="missing T_top_world"):
+        load_world_file(tmp_path / "w.json")
+
+
+# ----------------------------------------------------------------------------- command line
+def test_cli_calibrates_a_folder_and_imports(folder, capture, tmp_path, capsys):
+    from rig.cli import main
+
+    out = tmp_path / "out" / "rig.json"
+    assert main(["calibrate", str(folder), "--out", str(out), "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "vs truth T_side_world" in printed
+    for name in ("rig.json", "rig_stereo.yaml", "rig_side.yaml", "rig_top.yaml", "calibration_report.json",
+                 "calibration_coverage_side.png", "calibration_coverage_top.png"):
+        assert (out.parent / name).is_file(), name
+    rig = load_rig_calibration(out)
+    d_mm, d_deg = pose_difference(rig["side"].T_cam_world, capture.truth["side"].T_cam_world)
+    assert d_mm < 0.2 and d_deg < 0.05
+
+    # import the exported OpenCV stereo file, world frame from the world-frame image
+    again = tmp_path / "imported.json"
+    assert main(["calibrate", "--import-opencv", str(out.parent / "rig_stereo.yaml"), "--world-from", str(folder / "world" / "top.png"),
+                 "--board", "11x8", "--square-mm", "6", "--world-origin-mm", *map(str, capture.world_origin_mm),
+                 "--out", str(again), "--quiet"]) == 0
+    imported = load_rig_calibration(again)
+    d_mm, d_deg = pose_difference(imported["side"].T_cam_world, rig["side"].T_cam_world)
+    assert d_mm < 0.1 and d_deg < 0.02
+    # ROS intrinsics + a world file
+    save_ros_camera_info(tmp_path / "side.yaml", rig["side"])
+    save_ros_camera_info(tmp_path / "top.yaml", rig["top"])
+    T_side_top = rig["side"].T_cam_world @ invert_transform(rig["top"].T_cam_world)
+    save_world_file(tmp_path / "world.yaml", rig["top"].T_cam_world, T_side_top)
+    ros = tmp_path / "ros.json"
+    assert main(["calibrate", "--import-ros", str(tmp_path / "side.yaml"), str(tmp_path / "top.yaml"),
+                 "--world-from", str(tmp_path / "world.yaml"), "--out", str(ros)]) == 0
+    np.testing.assert_allclose(load_rig_calibration(ros)["side"].T_cam_world, rig["side"].T_cam_world, atol=1e-9)
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    from rig.cli import main
+
+    (tmp_path / "cal" / "side").mkdir(parents=True)
+    assert main(["calibrate", str(tmp_path / "cal"), "--board", "9x6", "--square-mm", "5", "--out", str(tmp_path / "r.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("ctr-bench calibrate: error: ") and "no images" in err and "\n" not in err
+    assert main(["calibrate", str(tmp_path / "cal"), "--out", str(tmp_path / "r.json")]) == 2
+    assert "--board" in capsys.readouterr().err
+    assert main(["calibrate", "--out", str(tmp_path / "r.json")]) == 2
+    assert "exactly one of" in capsys.readouterr().err
+
+
+def test_calibration_scene_validation(tmp_path):
+    from twin.board import load_calibration_scene
+    from twin.scene import SceneError
+
+    text = (SCENES / "calibration.toml").read_text().replace('rig_scene = "paper.toml"', f'rig_scene = "{SCENES / "paper.toml"}"')
+    (tmp_path / "c.toml").write_text(text.replace("square_mm = 6.0", "square_mm = 6.0\nsquare = 2"))
+    with pytest.raises(SceneError, match=r"c.toml: board.square: unknown key"):
+        load_calibration_scene(tmp_path / "c.toml")
+    (tmp_path / "c.toml").write_text(text.replace("rows = 8 ", "rows = 11 "))
+    with pytest.raises(SceneError, match=r"board.rows: must differ from cols=11"):
+        load_calibration_scene(tmp_path / "c.toml")
+    (tmp_path / "c.toml").write_text(text.replace('rig_scene = ', 'rig_scene = "nope.toml"\n#'))
+    with pytest.raises(SceneError, match=r"rig_scene: no such scene file"):
+        load_calibration_scene(tmp_path / "c.toml")
