@@ -3,10 +3,25 @@
 The paper draws the reconstruction straight from the surviving voxels. A
 backbone curve, base first, is what the rest of the project measures (tip
 position, length, error against a model), so the voxel cloud is ordered here:
-voxels are pooled into cubic cells, neighbouring cells are linked, the
-geodesic distance from the base end is computed along the links, voxels are
-binned by it and each bin averaged into one backbone point; the points are
-lightly smoothed and resampled at a fixed arc-length step.
+
+1. voxels are pooled into cubic cells (the largest voxel edge) and
+   neighbouring cells are linked;
+2. the pieces of that graph (the cloud breaks wherever a centerline has a gap
+   in either view, e.g. at the step from the outer to the inner tube) are
+   joined along a minimum spanning tree of the pieces, a gap being bridged
+   when it is no longer than the pieces it joins or the images support it;
+   what no bridge reaches (specks) is dropped. Keeping only the largest
+   connected piece instead, as a fixed-radius graph does, can drop the base
+   (the reconstruction then starts beyond the gap);
+3. the geodesic distance from the base end (the end nearer the rig's base
+   point, where the robot leaves the actuation unit) orders the cells; they
+   are binned by it and each bin averaged into one backbone point;
+4. twice, the cells are re-binned by their projection onto that curve (the
+   last bins become slabs across the cloud instead of its farthest corner),
+   the end points are taken from a line fit over the last few bins (an end
+   bin holds few voxels and its mean jitters laterally), and the points are
+   lightly smoothed;
+5. the curve is resampled at a fixed arc-length step.
 
 World coordinates in mm; arc length ``s`` in mm from the base end.
 """
@@ -43,12 +58,27 @@ class BackboneParams:
         edge.
     smooth_passes : int
         Passes of a [1, 2, 1] / 4 filter over the bin averages (ends fixed).
+    refine_passes : int
+        Passes re-binning the voxels by their projection onto the curve of the
+        previous pass (see the module docstring).
+    end_fit_bins : int
+        Each end point is the end of a line fitted to this many end bins
+        (< 2: the end bins' means as they are).
+    bridge_factor : float
+        Pieces of the cloud are joined across a gap no longer than this times
+        the extent of the smaller side (see :func:`order_backbone`).
+    max_gap_mm : float
+        Longest gap bridged (mm).
     """
 
     step_mm: float = 0.5
     neighbour_radius_voxels: float = 1.8
     bin_voxels: float = 1.0
     smooth_passes: int = 2
+    refine_passes: int = 2
+    end_fit_bins: int = 5
+    bridge_factor: float = 1.0
+    max_gap_mm: float = 20.0
 
     def __post_init__(self):
         if not self.step_mm > 0:
@@ -78,9 +108,9 @@ class ReconstructedBackbone:
     length_mm : float
         Arc length of ``points_mm`` (mm).
     n_voxels : int
-        Voxels in the largest connected component, the one used.
+        Voxels used: the pieces joined to the one holding the most voxels.
     n_dropped : int
-        Voxels outside it (ghosts, specks).
+        Voxels in pieces no bridge reached (ghosts, specks).
     """
 
     points_mm: np.ndarray
@@ -139,6 +169,60 @@ def _smooth(points: np.ndarray, passes: int) -> np.ndarray:
     return p
 
 
+def _fit_ends(means: np.ndarray, n_fit: int) -> np.ndarray:
+    """Bin means (k, 4: x, y, z, t) with each end point replaced by a line fit over the ``n_fit`` end bins.
+
+    An end bin holds few voxels (the cloud thins out), so its mean jitters
+    laterally by a fraction of a voxel; the line through the last few bins,
+    evaluated at the end bin's mean ``t``, does not.
+    """
+    k = means.shape[0]
+    if n_fit < 2 or k < n_fit + 1:
+        return means
+    out = means.copy()
+    for sl, i in ((slice(0, n_fit), 0), (slice(k - n_fit, k), k - 1)):
+        t = means[sl, 3]
+        A = np.column_stack([np.ones_like(t), t - t.mean()])
+        coef, *_ = np.linalg.lstsq(A, means[sl, :3], rcond=None)
+        out[i, :3] = coef[0] + (means[i, 3] - t.mean()) * coef[1]
+    return out
+
+
+def _bin_means(t, sums, counts, width):
+    """Per bin of ``t`` (``width`` wide): the mean voxel position and the mean ``t``, (k, 4), in order."""
+    bins = np.floor(t / width).astype(np.int64)
+    _, of_cell, per_bin = np.unique(bins, return_inverse=True, return_counts=True)
+    acc = np.zeros((per_bin.size, 5))
+    np.add.at(acc, of_cell.reshape(-1), np.column_stack([sums, counts * t, counts]))
+    return acc[:, :4] / acc[:, 4:5]
+
+
+def _project_cells(centres, pts, s_prior, tolerance):
+    """Arc length along the polyline ``pts`` of each cell's nearest point, extrapolated past the ends.
+
+    Cells past an end are placed along the end's tangent, so that the last
+    bins are slabs across the cloud rather than its farthest corner. Where
+    the projection disagrees with ``s_prior`` (the geodesic order) by more
+    than ``tolerance`` (mm), a curve that passes near itself, the prior
+    stays.
+    """
+    if pts.shape[0] < 2:
+        return s_prior
+    # A tenth of the tolerance's cell: nearest vertex ~ nearest point.
+    dense = resample_polyline(pts, tolerance / 30.0)
+    s_dense = arc_length(dense)
+    if s_dense[-1] <= 0.0:
+        return s_prior
+    _, j = cKDTree(dense).query(centres)
+    s = s_dense[j]
+    t0 = dense[1] - dense[0]
+    t1 = dense[-1] - dense[-2]
+    first, last = j == 0, j == dense.shape[0] - 1
+    s[first] = np.minimum(0.0, (centres[first] - dense[0]) @ (t0 / np.linalg.norm(t0)))
+    s[last] = s_dense[-1] + np.maximum(0.0, (centres[last] - dense[-1]) @ (t1 / np.linalg.norm(t1)))
+    return np.where(np.abs(s - s_prior) <= tolerance, s, s_prior)
+
+
 def _transition_distance(g: np.ndarray, labels: np.ndarray) -> float:
     """Geodesic distance best separating outer (before) from inner (after) labels; NaN if one is missing."""
     order = np.argsort(g)
@@ -156,6 +240,68 @@ def _transition_distance(g: np.ndarray, labels: np.ndarray) -> float:
     return 0.5 * float(gs[k - 1] + gs[k])
 
 
+def _bridge_pieces(centres, comp, n_comp, counts, cell, params, bridge_check=None):
+    """Bridges (k, 2 cell indices) joining pieces of the cell graph, and the cells kept (m,) bool.
+
+    The carved cloud of a robot comes in pieces wherever a centerline has a
+    gap in either view (the step from the outer to the inner tube, a stretch
+    the silhouette missed). The pieces are joined along a minimum spanning
+    tree: Kruskal over the pieces, the gap between two pieces being the
+    distance between their nearest cells. A gap is bridged when it is no
+    longer than ``bridge_factor`` times the smaller of the two groups it
+    joins (their extent, the diagonal of their bounding box) and at most
+    ``max_gap_mm``, or shorter than two cells in any case: a stretch of robot
+    continues across a gap of its own size, an isolated speck does not. A
+    longer gap (up to ``max_gap_mm``) is bridged when ``bridge_check(p, q)``
+    says the images support it (the paper's method: the straight segment
+    between the two cells projects into every silhouette). The group holding
+    the most voxels is kept; the rest are dropped.
+    """
+    m = centres.shape[0]
+    if n_comp == 1:
+        return np.zeros((0, 2), np.int64), np.ones(m, bool)
+    members = [np.flatnonzero(comp == c) for c in range(n_comp)]
+    trees = [cKDTree(centres[idx]) for idx in members]
+    cand = []
+    for a in range(n_comp):
+        for b in range(a + 1, n_comp):
+            # Query the smaller piece against the larger one's tree.
+            small, big = (a, b) if members[a].size <= members[b].size else (b, a)
+            d, j = trees[big].query(centres[members[small]])
+            k = int(np.argmin(d))
+            cand.append((float(d[k]), int(members[small][k]), int(members[big][j[k]]), a, b))
+    cand.sort()
+    parent = list(range(n_comp))
+    lo = [centres[idx].min(axis=0) for idx in members]
+    hi = [centres[idx].max(axis=0) for idx in members]
+
+    def find(c):
+        while parent[c] != c:
+            parent[c] = parent[parent[c]]
+            c = parent[c]
+        return c
+
+    bridges = []
+    for gap, i, j, a, b in cand:
+        ra, rb = find(a), find(b)
+        if ra == rb:
+            continue
+        extent = min(float(np.linalg.norm(hi[ra] - lo[ra])) + cell, float(np.linalg.norm(hi[rb] - lo[rb])) + cell)
+        if gap > params.max_gap_mm:
+            continue
+        if gap > 2.0 * cell and gap > params.bridge_factor * extent:
+            if bridge_check is None or not bridge_check(centres[i], centres[j]):
+                continue
+        parent[rb] = ra
+        lo[ra], hi[ra] = np.minimum(lo[ra], lo[rb]), np.maximum(hi[ra], hi[rb])
+        bridges.append((i, j))
+    root = np.array([find(c) for c in range(n_comp)])
+    weight = np.bincount(root[comp], weights=counts, minlength=n_comp)
+    main = root[comp] == int(np.argmax(weight))
+    bridges = [(i, j) for i, j in bridges if main[i]]
+    return np.array(bridges, np.int64).reshape(-1, 2), main
+
+
 def order_backbone(
     voxels_mm,
     labels,
@@ -164,6 +310,7 @@ def order_backbone(
     params: BackboneParams = BackboneParams(),
     *,
     voxel_size_mm=None,
+    bridge_check=None,
 ) -> ReconstructedBackbone:
     """Order a carved voxel cloud into a backbone curve, base first.
 
@@ -183,6 +330,10 @@ def order_backbone(
     params : BackboneParams
     voxel_size_mm : float or (3,) array, optional
         Voxel edge per axis (mm); estimated from the coordinates if omitted.
+    bridge_check : callable(p, q) -> bool, optional
+        Whether a straight bridge between world points ``p`` and ``q`` (mm)
+        over a gap between pieces of the cloud is supported by the images;
+        lets gaps longer than the pieces they join be bridged.
 
     Returns
     -------
@@ -205,20 +356,28 @@ def order_backbone(
     # Cells of the largest voxel edge; each holds the sum and count of its voxels.
     cell = float(size.max())
     # +0.5: voxel centres on the coarsest axis sit exactly on cell centres, not on edges.
-    keys = np.floor((vox - vox.min(axis=0)) / cell + 0.5).astype(np.int64)
-    keys, of_voxel, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    grid = np.floor((vox - vox.min(axis=0)) / cell + 0.5).astype(np.int64)
+    # One integer per cell (a 1-D unique is several times faster than a row-wise one).
+    dims = grid.max(axis=0) + 1
+    flat, of_voxel, counts = np.unique(np.ravel_multi_index(grid.T, dims), return_inverse=True, return_counts=True)
+    keys = np.stack(np.unravel_index(flat, dims), axis=1)
     of_voxel = of_voxel.reshape(-1)
     sums = np.zeros((keys.shape[0], 3))
     np.add.at(sums, of_voxel, vox)
     centres = sums / counts[:, None]
 
-    # Cell graph, weighted by the distance between cell means (mm).
+    # Cell graph, weighted by the distance between cell means (mm): links
+    # between neighbouring cells, plus bridges over the gaps between pieces.
     pairs = cKDTree(keys).query_pairs(params.neighbour_radius_voxels, output_type="ndarray")
     m = keys.shape[0]
+    n_comp, comp = connected_components(
+        coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m)), directed=False
+    )
+    bridges, main = _bridge_pieces(centres, comp, n_comp, counts, cell, params, bridge_check)
+    if bridges.size:
+        pairs = np.concatenate([pairs, bridges])
     w = np.linalg.norm(centres[pairs[:, 0]] - centres[pairs[:, 1]], axis=1)
     graph = coo_matrix((np.maximum(w, 1e-9), (pairs[:, 0], pairs[:, 1])), shape=(m, m)).tocsr()
-    _, comp = connected_components(graph, directed=False)
-    main = comp == np.argmax(np.bincount(comp, weights=counts))
     graph = graph[main][:, main]
     in_main = main[of_voxel]
     n_dropped = int(np.count_nonzero(~in_main))
@@ -241,23 +400,25 @@ def order_backbone(
     g_cell = d_a if base_is_a else dijkstra(graph, directed=False, indices=end_b)
 
     # One point per geodesic bin: the mean of its voxels.
-    bins = np.floor(g_cell / (params.bin_voxels * cell)).astype(np.int64)
-    _, of_cell, per_bin = np.unique(bins, return_inverse=True, return_counts=True)
-    acc = np.zeros((per_bin.size, 5))
-    np.add.at(acc, of_cell.reshape(-1), np.column_stack([sums, counts * g_cell, counts]))
-    means = acc[:, :4] / acc[:, 4:5]
+    width = params.bin_voxels * cell
+    means = _bin_means(g_cell, sums, counts, width)
     pts = _smooth(means[:, :3], int(params.smooth_passes))
-    s_bins = arc_length(pts)
+    # Geodesic distance overestimates arc length (grid paths zigzag); map it
+    # through the bins' own (mean geodesic, arc length) pairs.
+    s_cell = np.interp(g_cell, means[:, 3], arc_length(pts))
+    for _ in range(int(params.refine_passes)):
+        s_cell = _project_cells(centres, pts, s_cell, 3.0 * cell)
+        means = _bin_means(s_cell, sums, counts, width)
+        means = _fit_ends(means, int(params.end_fit_bins))
+        pts = _smooth(means[:, :3], int(params.smooth_passes))
+        s_cell = np.interp(s_cell, means[:, 3], arc_length(pts))
     points = resample_polyline(pts, params.step_mm)
     length = float(arc_length(points)[-1])
 
-    g_t = _transition_distance(g_cell[of_voxel], lab)
-    if np.isnan(g_t):
-        s_t, p_t = float("nan"), np.full(3, np.nan)
+    s_t = _transition_distance(s_cell[of_voxel], lab)
+    if np.isnan(s_t):
+        p_t = np.full(3, np.nan)
     else:
-        # Geodesic distance overestimates arc length (grid paths zigzag); map
-        # it through the bins' own (mean geodesic, arc length) pairs.
-        s_t = float(np.interp(g_t, means[:, 3], s_bins))
         s_pts = arc_length(points)
         p_t = np.array([np.interp(s_t, s_pts, points[:, c]) for c in range(3)])
     return ReconstructedBackbone(

@@ -9,12 +9,23 @@ the voxels are ordered into a backbone curve (:mod:`recon.backbone`).
 :func:`prepare_paper` does the once-per-session work (fitting the
 eigenbackgrounds, converting tube radii to pixels); :func:`reconstruct_paper`
 does one frame pair.
+
+Where this departs from the paper, and why, is listed in
+``docs/paper-method.md``; in short: the silhouette is closed and its holes
+filled (specular cracks), only regions as wide as a tube count as the robot
+(jitter edges), the structuring elements are sized from the tube radii in
+pixels and the silhouette's measured width, stretches too thin for either
+disk are bridged by their middle line, the outer tube's region (not its
+centerline) is subtracted before the second erosion, the voxels are ordered
+along a spanning tree that bridges gaps, and a camera that does not see the
+robot base lets the robot cross the image border on that side.
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
+import cv2
 import numpy as np
 
 from .backbone import BackboneParams, order_backbone
@@ -23,7 +34,7 @@ from .carving import CarvingParams, bounding_box, carve
 from .centerline import CenterlineParams, centerline_params_for, extract_centerline
 from .errors import FrameError
 from .rigcal import RigCalibration
-from .silhouette import SilhouetteParams, extract_silhouette
+from .silhouette import BORDERS, SilhouetteParams, extract_silhouette
 
 __all__ = ["PaperParams", "PaperModel", "Reconstruction", "prepare_paper", "reconstruct_paper", "camera_order"]
 
@@ -42,6 +53,15 @@ class PaperParams:
         :func:`recon.centerline.centerline_params_for`).
     centerline_min_region_px : int
         Small-region removal on the centerlines (px).
+    edge_loss_px : float
+        How much narrower than the tube (px per side) a silhouette is expected
+        to be: the starting point of the per-frame width measurement and the
+        fallback when it cannot be made (see
+        :func:`recon.centerline.measure_edge_loss`).
+    measure_width : bool
+        Size the structuring elements per frame from the tube radii in pixels
+        and the silhouette's measured width (default); False: once per
+        session from the tube radii and ``edge_loss_px``.
     carving : CarvingParams
     backbone : BackboneParams
     """
@@ -51,6 +71,8 @@ class PaperParams:
     outer_tube_radius_mm: float = 0.8
     inner_tube_radius_mm: float = 0.5
     centerline_min_region_px: int = CenterlineParams.min_region_px
+    edge_loss_px: float = CenterlineParams.edge_loss_px
+    measure_width: bool = True
     carving: CarvingParams = field(default_factory=CarvingParams)
     backbone: BackboneParams = field(default_factory=BackboneParams)
 
@@ -69,12 +91,20 @@ class PaperModel:
         Camera name -> :class:`~recon.background.EigenBackground`.
     centerline : dict
         Camera name -> :class:`~recon.centerline.CenterlineParams`.
+    tube_radii_px : dict
+        Camera name -> (outer, inner) tube radius (px) at the robot base.
+    silhouette : dict
+        Camera name -> :class:`~recon.silhouette.SilhouetteParams`: the
+        method's, with the border the robot base lies beyond (if it lies
+        outside the image) added to ``allowed_borders``.
     """
 
     rig: RigCalibration
     camera_names: tuple
     backgrounds: dict
     centerline: dict
+    tube_radii_px: dict = field(default_factory=dict)
+    silhouette: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,6 +137,10 @@ class Reconstruction:
         Wall time per stage (ms): ``background``, ``silhouette``,
         ``centerline`` (all cameras), ``bounding_box``, ``carve``,
         ``backbone`` and ``total``.
+    centerline_disks : dict
+        Camera name -> ``{"outer_radius_px", "inner_radius_px",
+        "edge_loss_px"}``: the structuring elements used and the measured
+        silhouette edge loss (None when not measured).
     """
 
     points_world_mm: np.ndarray
@@ -120,6 +154,7 @@ class Reconstruction:
     voxel_size_mm: np.ndarray
     n_voxels: int
     timings_ms: dict
+    centerline_disks: dict = field(default_factory=dict)
 
 
 def camera_order(names) -> tuple:
@@ -152,7 +187,7 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
     names = camera_order(rig.names)
     if len(names) < 2:
         raise ValueError(f"the paper's method needs two cameras, the rig has {len(names)}")
-    backgrounds, centerline = {}, {}
+    backgrounds, centerline, radii, sil = {}, {}, {}, {}
     for name in names:
         cam = rig[name]
         if name not in background_frames:
@@ -172,8 +207,78 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
             params.inner_tube_radius_mm,
             rig.base_point_world_mm,
             min_region_px=params.centerline_min_region_px,
+            edge_loss_px=params.edge_loss_px,
+            adaptive=params.measure_width,
         )
-    return PaperModel(rig=rig, camera_names=names, backgrounds=backgrounds, centerline=centerline)
+        mmpp = cam.mm_per_pixel_at(rig.base_point_world_mm)
+        radii[name] = (params.outer_tube_radius_mm / mmpp, params.inner_tube_radius_mm / mmpp)
+        behind = [b for b in base_borders(cam, rig.base_point_world_mm) if b not in params.silhouette.allowed_borders]
+        sil[name] = replace(params.silhouette, allowed_borders=params.silhouette.allowed_borders + tuple(behind))
+    return PaperModel(
+        rig=rig, camera_names=names, backgrounds=backgrounds, centerline=centerline, tube_radii_px=radii, silhouette=sil
+    )
+
+
+def silhouette_bridge_check(cameras, silhouettes, voxel_size_mm):
+    """``check(p, q)``: whether the segment p-q (world mm) projects into every silhouette.
+
+    Used by :func:`recon.backbone.order_backbone` to bridge a gap in the
+    carved cloud longer than the pieces it joins (a stretch where a centerline
+    broke up, e.g. a tube whose specular side matches the backdrop and whose
+    silhouette is only half as wide there): the robot's silhouettes are
+    continuous across a real gap. Points along the segment, every half voxel
+    edge, may lie off a silhouette by a voxel's half-diagonal seen at their
+    depth plus 1 px (the chord of a curved robot, the voxels' quantization).
+    """
+    voxel = np.broadcast_to(np.asarray(voxel_size_mm, float), (3,))
+    half_diag = 0.5 * float(np.linalg.norm(voxel))
+    step = 0.5 * float(voxel.min())
+    dist = {}
+
+    def check(p, q) -> bool:
+        p, q = np.asarray(p, float), np.asarray(q, float)
+        n = max(2, int(np.ceil(np.linalg.norm(q - p) / step)) + 1)
+        pts = p + np.linspace(0.0, 1.0, n)[:, None] * (q - p)
+        for k, (cam, sil) in enumerate(zip(cameras, silhouettes)):
+            if k not in dist:
+                # Distance (px) to the nearest silhouette pixel, computed on first use only.
+                dist[k] = cv2.distanceTransform((~np.asarray(sil, bool)).view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
+            uv, z = cam.project(pts)
+            if not np.all(z > 0) or not np.all(np.isfinite(uv)):
+                return False
+            iu, iv = np.rint(uv[:, 0]).astype(int), np.rint(uv[:, 1]).astype(int)
+            if iu.min() < 0 or iv.min() < 0 or iu.max() >= cam.width or iv.max() >= cam.height:
+                return False
+            tol = np.sqrt(cam.K[0, 0] * cam.K[1, 1]) * half_diag / z + 1.0
+            if np.any(dist[k][iv, iu] > tol):
+                return False
+        return True
+
+    return check
+
+
+def base_borders(camera, base_point_world_mm) -> list:
+    """Image borders the robot base lies beyond, as ``camera`` sees it (none if it is in the image).
+
+    When the camera does not see where the tubes leave the actuation unit, the
+    robot enters the image across the border on that side: its silhouette
+    touching that border is expected, not the robot leaving the view.
+    """
+    p = np.asarray(base_point_world_mm, float).reshape(1, 3)
+    pc = camera.world_to_camera(p)[0]
+    if not pc[2] > 0:
+        return []
+    # With and without the lens distortion: far outside the field of view the
+    # distortion polynomial can fold a point back into the image.
+    ideal = camera.K[:2, :2] @ (pc[:2] / pc[2]) + camera.K[:2, 2]
+    uv, _ = camera.project(p)
+    out = set()
+    for u, v in (ideal, uv[0]):
+        if np.isfinite(u) and np.isfinite(v):
+            for b, beyond in (("left", u < -0.5), ("right", u > camera.width - 0.5), ("top", v < -0.5), ("bottom", v > camera.height - 0.5)):
+                if beyond:
+                    out.add(b)
+    return [b for b in BORDERS if b in out]
 
 
 def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = PaperParams()) -> Reconstruction:
@@ -208,15 +313,18 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
 
     names = model.camera_names
     cameras = [model.rig[n] for n in names]
-    silhouettes, centerlines = {}, {}
+    silhouettes, centerlines, disks = {}, {}, {}
     for name in names:
         if name not in frames or frames[name] is None:
             raise FrameError("no frame", name)
         diff, peak = difference_image(model.backgrounds[name], frames[name], name)
         lap("background")
-        silhouettes[name] = extract_silhouette(diff, params.silhouette, name, max_difference=peak)
+        silhouettes[name] = extract_silhouette(
+            diff, model.silhouette.get(name, params.silhouette), name, max_difference=peak, tube_radii_px=model.tube_radii_px.get(name)
+        )
         lap("silhouette")
-        mask, labels = extract_centerline(silhouettes[name], model.centerline[name])
+        disks[name] = {}
+        mask, labels = extract_centerline(silhouettes[name], model.centerline[name], info=disks[name])
         if not mask.any():
             raise FrameError("empty centerline (the silhouette is thinner than the tubes)", name)
         centerlines[name] = labels
@@ -238,6 +346,7 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
         model.rig.insertion_axis_world,
         params.backbone,
         voxel_size_mm=carved.voxel_size_mm,
+        bridge_check=silhouette_bridge_check(cameras, [silhouettes[n] for n in names], carved.voxel_size_mm),
     )
     lap("backbone")
     timings["total"] = 1e3 * (time.perf_counter() - t_start)
@@ -253,4 +362,5 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
         voxel_size_mm=carved.voxel_size_mm,
         n_voxels=int(carved.points_mm.shape[0]),
         timings_ms=timings,
+        centerline_disks=disks,
     )

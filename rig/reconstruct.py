@@ -63,6 +63,24 @@ def load_background_frames(session: Session) -> dict:
     return out
 
 
+def _background_error(session: Session, exc: Exception) -> str:
+    """One line naming the background directory at fault (the camera's, when the message names one)."""
+    msg = " ".join(str(exc).split())
+    cam, sep, rest = msg.partition(": ")
+    if sep and cam in session.cameras:
+        return f"{session.dir / 'background' / cam}: {rest}"
+    return f"{session.dir / 'background'}: {msg}"
+
+
+def _one_line(exc: Exception) -> str:
+    """A per-frame failure reason: the exception's message on one line."""
+    msg = " ".join(str(exc).split())
+    if isinstance(exc, (FrameError, SessionError)):
+        return msg
+    # Not a foreseen failure: say what it was, still on one line.
+    return f"unexpected {type(exc).__name__}: {msg}" if msg else f"unexpected {type(exc).__name__}"
+
+
 def mm_per_pixel(session: Session) -> float:
     """Mean pixel footprint (mm) of the cameras at the robot base."""
     base = session.rig.base_point_world_mm
@@ -74,6 +92,8 @@ def summarize(records: list, method: str, params, session_dir, mm_px: float) -> 
     ok = [r for r in records if r["status"] == "ok"]
     scored = [r for r in ok if r.get("mean_error_mm") is not None]
     ms = np.array([r["ms"] for r in ok]) if ok else np.array([])
+    # Largest voxel edge of each frame (methods that carve voxels).
+    voxel = np.array([max(r["voxel_size_mm"]) for r in ok if r.get("voxel_size_mm")], float)
 
     def agg(key, fn):
         vals = np.array([r[key] for r in scored], float)
@@ -94,6 +114,8 @@ def summarize(records: list, method: str, params, session_dir, mm_px: float) -> 
         "tip_error_mm_median": agg("tip_error_mm", np.median),
         "tip_error_mm_max": agg("tip_error_mm", np.max),
         "length_error_mm_median": agg("length_error_mm", np.median),
+        "voxel_edge_mm_median": _finite(np.median(voxel)) if voxel.size else None,
+        "voxel_edge_mm_max": _finite(np.max(voxel)) if voxel.size else None,
         "ms_per_pair_median": _finite(np.median(ms)) if ms.size else None,
         "ms_per_pair_p95": _finite(np.percentile(ms, 95)) if ms.size else None,
         "per_frame": records,
@@ -137,16 +159,16 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
     backgrounds = load_background_frames(session)
     try:
         reconstruct = m.prepare(session.rig, backgrounds, params)
-    except FrameError as exc:
-        raise SessionError(f"{session.dir / 'background'}: {exc}") from None
-    except ValueError as exc:
-        raise SessionError(f"{session.dir / 'background'}: {exc}") from None
+    except ValueError as exc:  # FrameError included
+        raise SessionError(_background_error(session, exc)) from None
     mm_px = mm_per_pixel(session)
     wanted = set(frames) if frames is not None else None
     todo = [f for f in session.frames if wanted is None or f.index in wanted]
     records, backbones = [], {}
     for n, fr in enumerate(todo):
         rec = {"frame": fr.index, "t_s": fr.t_s, "status": "ok", "reason": None}
+        # Whatever goes wrong with one frame is that frame's failure, with a
+        # one-line reason; the run goes on and keeps what it has written.
         try:
             images = session.frame_images(fr.index)
             for cam, img in images.items():
@@ -156,10 +178,15 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
             t0 = time.perf_counter()
             result = reconstruct(images)
             rec["ms"] = 1e3 * (time.perf_counter() - t0)
-        except (FrameError, SessionError) as exc:
-            rec.update(status="failed", reason=str(exc).splitlines()[0])
-        if rec["status"] == "ok":
             pts = np.asarray(result.points_world_mm, float)
+            if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] == 0 or not np.all(np.isfinite(pts)):
+                raise FrameError("the reconstruction has no valid backbone point")
+        except Exception as exc:  # noqa: BLE001 - per-frame isolation is the point
+            if os.environ.get("CTR_BENCH_DEBUG") and not isinstance(exc, (FrameError, SessionError)):
+                raise  # a developer asked to see where an unforeseen failure comes from
+            rec.pop("ms", None)
+            rec.update(status="failed", reason=_one_line(exc))
+        if rec["status"] == "ok":
             backbones[fr.index] = pts
             np.savetxt(out / "frames" / f"{fr.index:06d}.csv", pts, delimiter=",", fmt="%.4f", header="x_mm,y_mm,z_mm", comments="")
             rec.update(
@@ -169,10 +196,18 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
                 transition_s_mm=_finite(result.transition_s_mm),
                 timings_ms={k: round(float(v), 3) for k, v in result.timings_ms.items()},
             )
-            truth = session.truth(fr.index)
-            if truth is not None:
-                errs = backbone_errors(pts, truth["backbone_world_mm"])
-                rec.update({k: _finite(v) for k, v in errs.items()})
+            voxel = getattr(result, "voxel_size_mm", None)
+            if voxel is not None:
+                rec["voxel_size_mm"] = [float(v) for v in np.broadcast_to(np.asarray(voxel, float), (3,))]
+            try:
+                truth = session.truth(fr.index)
+                if truth is not None:
+                    if "backbone_world_mm" not in truth:
+                        raise SessionError(f"{session.dir / 'truth' / f'{fr.index:06d}.npz'}: no backbone_world_mm array")
+                    errs = backbone_errors(pts, truth["backbone_world_mm"])
+                    rec.update({k: _finite(v) for k, v in errs.items()})
+            except Exception as exc:  # noqa: BLE001 - a bad truth file costs the score, not the frame
+                rec["note"] = f"not scored: {_one_line(exc)}"
         records.append(rec)
         summary = summarize(records, method, params, session.dir, mm_px)
         _atomic_json(out / "summary.json", summary)
@@ -211,6 +246,11 @@ def format_table(summary: dict) -> str:
             f"max error {s['max_error_mm']:.3f} mm ({s['max_error_mm'] / px:.2f} px), "
             f"tip error median {s['tip_error_mm_median']:.3f} mm ({s['tip_error_mm_median'] / px:.2f} px), "
             f"max {s['tip_error_mm_max']:.3f} mm"
+        )
+    if s.get("voxel_edge_mm_median") is not None:
+        lines.append(
+            f"voxel edge (largest of the three) median {s['voxel_edge_mm_median']:.3f} mm, max {s['voxel_edge_mm_max']:.3f} mm"
+            + (f"; mean error {s['mean_error_mm'] / s['voxel_edge_mm_median']:.2f} voxel" if s.get("mean_error_mm") is not None else "")
         )
     if s.get("ms_per_pair_median") is not None:
         lines.append(f"time per pair: median {s['ms_per_pair_median']:.1f} ms, p95 {s['ms_per_pair_p95']:.1f} ms")

@@ -111,3 +111,36 @@ def test_resample_polyline():
 def test_params_validated():
     with pytest.raises(ValueError):
         BackboneParams(step_mm=0.0)
+
+
+def test_gaps_bridged_base_kept():
+    # The step from the outer to the inner tube leaves a 1.5 mm gap in the
+    # carved cloud: the backbone must still start at the base, not at the
+    # larger piece beyond the gap.
+    curve, s = bent_curve()
+    vox, idx = voxelize(curve, 0.8)
+    keep = (s[idx] < 20.0) | (s[idx] > 21.5)
+    bb = order_backbone(vox[keep], None, curve[0], [1.0, 0.0, 0.0], voxel_size_mm=0.8)
+    assert np.linalg.norm(bb.points_mm[0] - curve[0]) <= 0.8
+    assert np.linalg.norm(bb.tip_mm - curve[-1]) <= 0.8
+    assert bb.n_dropped == 0
+
+
+def test_long_gap_bridged_only_with_image_support():
+    curve, s = bent_curve()
+    vox, idx = voxelize(curve, 0.8)
+    # A 6 mm gap before a 4 mm tip piece: longer than the piece it would join.
+    keep = (s[idx] < s[-1] - 10.0) | (s[idx] > s[-1] - 4.0)
+    calls = []
+
+    def supported(p, q):
+        calls.append((p, q))
+        return True
+
+    bb = order_backbone(vox[keep], None, curve[0], [1.0, 0.0, 0.0], voxel_size_mm=0.8)
+    assert bb.n_dropped > 0 and np.linalg.norm(bb.tip_mm - curve[-1]) > 5.0
+    bb = order_backbone(vox[keep], None, curve[0], [1.0, 0.0, 0.0], voxel_size_mm=0.8, bridge_check=supported)
+    assert calls and bb.n_dropped == 0
+    assert np.linalg.norm(bb.tip_mm - curve[-1]) <= 0.8
+    # A bridge's straight chord over 6 mm of a 40 mm radius arc: within ~0.15 mm of it.
+    assert point_to_polyline_distances(bb.points_mm[1:-1], curve).max() <= 0.5 * 0.8

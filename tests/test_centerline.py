@@ -114,3 +114,77 @@ def test_params_from_tube_radii():
 def test_invalid_radii():
     with pytest.raises(ValueError):
         CenterlineParams(outer_radius_px=3, inner_radius_px=5)
+
+
+def test_disk_radii_from_tube_radii():
+    from recon.centerline import disk_radii
+
+    # The paper's tubes at 0.116 mm/px, silhouettes 0.5 px narrower per side.
+    assert disk_radii(6.9, 4.3, 0.5) == (5, 3)
+    # Half-way between the tubes' half-widths (6.4 and 3.8 px): the large disk
+    # fits in the outer silhouette and not in the inner one, with margin.
+    r_out, r_in = disk_radii(6.9, 4.3, 0.5)
+    assert 3.8 + 0.5 <= r_out <= 6.4 - 0.5 + 1e-9
+    # Bigger images, bigger disks; never below 2 and 1.
+    assert disk_radii(13.8, 8.6, 1.0) == (10, 7)
+    assert disk_radii(1.5, 1.0, 0.5) == (2, 1)
+
+
+def test_edge_loss_measured_from_the_silhouette():
+    from recon.centerline import measure_edge_loss
+
+    params = CenterlineParams(outer_tube_px=R_OUTER, inner_tube_px=R_INNER, edge_loss_px=0.5)
+    a, m, b = (40, 150), (220, 150), (360, 150)
+    d_out, _ = segment_distance(a, m)
+    d_in, _ = segment_distance(m, b)
+    for loss in (0.0, 1.0):
+        sil = (d_out <= R_OUTER - loss) | (d_in <= R_INNER - loss)
+        # Pixel rows quantize a band's width: within half a pixel.
+        assert measure_edge_loss(sil, params) == pytest.approx(loss, abs=0.5)
+    assert measure_edge_loss(np.zeros((H, W), bool), params) is None
+
+
+def test_adaptive_disks_follow_the_measured_width():
+    a, m, b = (40, 150), (220, 150), (360, 150)
+    d_out, _ = segment_distance(a, m)
+    d_in, _ = segment_distance(m, b)
+    # Silhouettes 1.5 px narrower per side than the tubes: the fixed disks
+    # (5 and 3) would leave almost nothing of the inner tube.
+    sil = (d_out <= R_OUTER - 1.5) | (d_in <= R_INNER - 1.5)
+    params = CenterlineParams(outer_tube_px=R_OUTER, inner_tube_px=R_INNER)
+    info = {}
+    cl, labels = extract_centerline(sil, params, info=info)
+    assert info["edge_loss_px"] == pytest.approx(1.5, abs=0.5)
+    assert (info["outer_radius_px"], info["inner_radius_px"]) == (4, 2)
+    assert np.ptp(np.nonzero(labels == INNER)[1]) >= 140 - 2 * 2 - 8
+    assert np.ptp(np.nonzero(labels == OUTER)[1]) >= 180 - 2 * 4 - 2
+
+
+def test_dashed_line_kept_speck_removed():
+    from recon.centerline import remove_small_regions
+
+    m = np.zeros((40, 100), np.uint8)
+    m[20, 10:90:4] = 1  # dashes of 2 px, 2 px apart: 40 px in all
+    m[20, 11:90:4] = 1
+    m[5, 50:53] = 1  # a 3 px speck
+    kept = remove_small_regions(m, 10, gap_px=2)
+    assert kept[20].sum() == 40 and not kept[5].any()
+    assert not remove_small_regions(m, 10).any()
+
+
+def test_thin_stretch_bridged():
+    from recon.centerline import THIN
+
+    a, m, b = (40, 150), (220, 150), (360, 150)
+    d_out, _ = segment_distance(a, m)
+    d_in, _ = segment_distance(m, b)
+    sil = (d_out <= R_OUTER) | (d_in <= R_INNER)
+    yy, xx = np.mgrid[0:H, 0:W]
+    sil &= ~((xx >= 270) & (xx < 310) & (yy < 150))  # the inner tube's upper half lost over 40 px
+    cl, labels = extract_centerline(sil, PARAMS)
+    cols = np.unique(np.nonzero(cl)[1])
+    # No gap along the robot wider than a voxel footprint bridges (~2 x 4.7 px).
+    assert np.diff(cols[cols >= 230]).max() <= 8
+    thin = labels == THIN
+    assert thin.any() and np.all((xx[thin] >= 262) & (xx[thin] < 318))
+    assert np.abs(yy[thin] - 150).max() <= 3  # within the lower half of the tube

@@ -131,3 +131,27 @@ def test_prepare_needs_background_frames():
         prepare_paper(rig, {"side": np.zeros((3, 768, 1024), np.uint8), "top": np.zeros((8, 768, 1024), np.uint8)})
     with pytest.raises(ValueError, match=r"^side: no background frames$"):
         prepare_paper(rig, {"top": np.zeros((8, 768, 1024), np.uint8)})
+
+
+def test_base_outside_the_view(setup):
+    """A camera that does not see the base: the robot enters across that border, which is fine."""
+    rig, model, params, rng = setup
+    from recon.paper import base_borders
+
+    shift = np.array([-40.0, 0.0, 0.0])  # base at x = -40 mm, left of both fields of view (x > -9 mm)
+    moved = RigCalibration(rig.cameras, base_point_world_mm=shift, insertion_axis_world=[1, 0, 0])
+    for name, cam in rig.cameras.items():
+        u = cam.project(shift[None])[0][0, 0]
+        assert base_borders(cam, shift) == (["left"] if u < 0 else ["right"])
+        assert base_borders(cam, [50.0, 0.0, 0.0]) == []
+    backgrounds = {n: np.stack([render(c, rng) for _ in range(8)]) for n, c in rig.cameras.items()}
+    m = prepare_paper(moved, backgrounds, params)
+    s, pts = robot_backbone()
+    truth = pts + shift
+    frames = {name: render(cam, rng, backbone=(s, truth)) for name, cam in rig.cameras.items()}
+    rec = reconstruct_paper(m, frames, params)
+    seen = truth[truth[:, 0] > -5.0]  # what both cameras see
+    voxel = float(rec.voxel_size_mm.max())
+    assert backbone_errors(rec.points_world_mm, seen)["mean_error_mm"] <= voxel
+    assert np.linalg.norm(rec.tip_world_mm - truth[-1]) <= 2 * voxel
+    assert rec.points_world_mm[0, 0] < -5.0  # base first: from the image border

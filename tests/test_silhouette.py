@@ -80,3 +80,37 @@ def test_allowed_border():
 def test_unknown_border_name():
     with pytest.raises(ValueError, match="unknown border"):
         SilhouetteParams(allowed_borders=("west",))
+
+
+def test_cracks_and_holes_filled():
+    # A tube 13 px wide with a specular crack along it, open at the left end,
+    # and a closed hole: both belong to the tube.
+    d = blank()
+    d[40:53, 20:140] = 1.0
+    d[45:47, 20:100] = 0.1  # crack, 2 px wide, from the left end
+    d[48:50, 110:130] = 0.1  # hole
+    sil = extract_silhouette(d, SilhouetteParams(min_area_px=100), tube_radii_px=(6.9, 4.3))
+    assert sil[40:53, 20:140].all()
+    assert sil.sum() == 13 * 120
+    # Without tube radii (no closing) only the enclosed hole is filled.
+    sil = extract_silhouette(d, SilhouetteParams(min_area_px=100))
+    assert sil[48:50, 110:130].all() and not sil[45:47, 20:100].any()
+
+
+def test_loop_keeps_the_background_it_encloses():
+    d = blank()
+    d[20:30, 20:140] = d[90:100, 20:140] = 1.0
+    d[20:100, 20:30] = d[20:100, 130:140] = 1.0  # a ring around 60 x 100 px of background
+    sil = extract_silhouette(d, SilhouetteParams(min_area_px=100), tube_radii_px=(6.9, 4.3))
+    assert not sil[35:85, 35:125].any()
+
+
+def test_only_regions_as_wide_as_a_tube():
+    d = blank()
+    d[60:62, 5:155] = 1.0  # a long thin edge line (300 px), like camera jitter leaves
+    d[20:29, 40:70] = 1.0  # a 9 px wide tube (270 px)
+    sil = extract_silhouette(d, SilhouetteParams(min_area_px=100), tube_radii_px=(6.9, 4.3))
+    assert sil[20:29, 40:70].all() and not sil[60:62].any()
+    d[20:29, 40:70] = 0.0
+    with pytest.raises(FrameError, match=r"^side: no silhouette \(largest region 300 px, but no region as wide as a tube"):
+        extract_silhouette(d, SilhouetteParams(min_area_px=100), "side", tube_radii_px=(6.9, 4.3))
