@@ -6,6 +6,7 @@ rig scene's true cameras, then the bad inputs, the formats and the command line.
 """
 from __future__ import annotations
 
+import shutil
 import json
 from dataclasses import replace
 
@@ -346,3 +347,26 @@ def test_calibration_scene_validation(tmp_path):
     (tmp_path / "c.toml").write_text(text.replace('rig_scene = ', 'rig_scene = "nope.toml"\n#'))
     with pytest.raises(SceneError, match=r"rig_scene: no such scene file"):
         load_calibration_scene(tmp_path / "c.toml")
+
+
+# ----------------------------------------------------------------------------- use in reconstruction
+def test_reconstruction_with_calibrated_rig_is_as_good_as_with_true_rig(calibrated, paper_scene, tmp_path):
+    """Issue 5: scenes/paper.toml reconstructed with the calibrated rig has errors within 1.2x of the true rig's."""
+    from dataclasses import replace as dc_replace
+
+    from rig.reconstruct import reconstruct_session
+    from rig.session import SessionWriter
+    from twin.record import render_session
+
+    rig_cal, _ = calibrated
+    scene = dc_replace(paper_scene.with_frames([paper_scene.joints[i] for i in (2, 9, 13, 18)]), background_frames=8)
+    true_dir, cal_dir = tmp_path / "true", tmp_path / "calibrated"
+    with SessionWriter(true_dir, scene.rig, source="twin", n_tubes=scene.robot.n_tubes) as w:
+        render_session(scene, w)
+    shutil.copytree(true_dir, cal_dir)
+    save_rig_calibration(cal_dir / "rig.json", rig_cal)
+    true = reconstruct_session(true_dir, tmp_path / "out-true")
+    cal = reconstruct_session(cal_dir, tmp_path / "out-cal")
+    assert true["failed_frames"] == 0 and cal["failed_frames"] == 0
+    for key in ("mean_error_mm", "tip_error_mm_median"):
+        assert cal[key] <= 1.2 * true[key], f"{key}: calibrated {cal[key]:.4f} mm vs true rig {true[key]:.4f} mm"
