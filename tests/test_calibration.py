@@ -6,8 +6,8 @@ rig scene's true cameras, then the bad inputs, the formats and the command line.
 """
 from __future__ import annotations
 
-import shutil
 import json
+import shutil
 from dataclasses import replace
 
 import cv2
