@@ -39,6 +39,7 @@ example:
 
 def render_believed_session(scene_path, out, nominal_robot=None, joint_offsets=None, frames=None, quiet=True,
                             background_frames=None):
+    # ``scene_path`` may also be an already loaded (and adjusted) Scene.
     """Render a twin session as a researcher with a wrong model would record it.
 
     The twin renders the scene's (true) robot at the scene's (true) joints; the
@@ -57,7 +58,7 @@ def render_believed_session(scene_path, out, nominal_robot=None, joint_offsets=N
     from twin.record import render_session, robot_to_dict
     from twin.scene import load_scene
 
-    scene = load_scene(scene_path)
+    scene = load_scene(scene_path) if isinstance(scene_path, (str, Path)) else scene_path
     if frames is not None:
         scene = scene.with_frames(scene.joints[:frames])
     if background_frames is not None:
@@ -67,7 +68,7 @@ def render_believed_session(scene_path, out, nominal_robot=None, joint_offsets=N
     offsets = JointOffsets(np.asarray(jo.get("extension_mm", [0.0] * n), float), np.asarray(jo.get("rotation_deg", [0.0] * n), float))
     believed = load_robot_file(nominal_robot) if nominal_robot else None
     meta = {
-        "scene": str(scene_path), "scene_name": scene.name,
+        "scene": scene.source, "scene_name": scene.name,
         "robot": robot_to_dict(believed.robot, believed.model) if believed else robot_to_dict(scene.robot, scene.model),
         "true_robot": robot_to_dict(scene.robot, scene.model),
         "true_joint_offsets": {"extension_mm": offsets.extension_mm.tolist(), "rotation_deg": offsets.rotation_deg.tolist()},

@@ -12,6 +12,8 @@ def add_scene_options(p) -> None:
     p.add_argument("--frames", type=int, default=None, help="render only the first N robot frames")
     p.add_argument("--background-frames", type=int, default=None, help="override the number of background frames")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--model", choices=["bending", "compliant"], default=None,
+                   help="render with this kinematic model instead of the scene's robot.model")
 
 
 def load_scene_from_args(args):
@@ -29,6 +31,8 @@ def load_scene_from_args(args):
         if args.background_frames < 0:
             raise ValueError(f"--background-frames must be >= 0, got {args.background_frames}")
         scene = replace(scene, background_frames=args.background_frames)
+    if getattr(args, "model", None):
+        scene = replace(scene, model=args.model)
     return scene
 
 
@@ -67,8 +71,7 @@ def _run(args) -> int:
             if vals is not None and len(vals) != scene.robot.n_tubes:
                 raise ValueError(f"{option}: {len(vals)} values for a robot of {scene.robot.n_tubes} tubes")
         offsets = {k: v for k, v in (("rotation_deg", rot), ("extension_mm", ext)) if v is not None}
-        render_believed_session(args.scene or DEFAULT_SCENE, out, args.nominal_robot, offsets, frames=args.frames,
-                                quiet=args.quiet, background_frames=args.background_frames)
+        render_believed_session(scene, out, args.nominal_robot, offsets, quiet=args.quiet)
     else:
         render_scene_to(scene, out, quiet=args.quiet)
     print(f"rendered {len(scene.joints)} frame pairs and {scene.background_frames} background pairs of {scene.name!r} into {out}")
