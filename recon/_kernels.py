@@ -1,0 +1,503 @@
+"""Compiled (numba) versions of the fast method's per-pixel loops.
+
+Optional: :mod:`recon.subpixel` and :mod:`recon.fast` use these when numba
+imports and fall back to their NumPy code otherwise (same results to
+rounding; ``tests/test_fast_method.py`` checks both). Each kernel fuses what
+NumPy does in a dozen array passes into one loop, which matters because the
+work per frame is small (~1 % of the pixels) and NumPy's per-call overhead
+would dominate.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["profile_edges_nb", "coarse_foreground_nb", "bfs_path_nb", "rays_nb"]
+
+
+@njit(cache=True, nogil=True)
+def profile_edges_nb(frame, stack, coeff, cu, cv, axis, half, threshold):
+    """Cut the profiles and find their sub-pixel edges (see :func:`recon.subpixel.profile_edges`).
+
+    Returns ``e1, e2, ok`` (sample units from the window's first sample).
+    """
+    H, W = frame.shape
+    n = cu.shape[0]
+    L = 2 * half + 1
+    k1 = coeff.shape[0]
+    e1 = np.zeros(n)
+    e2 = np.zeros(n)
+    ok = np.zeros(n, np.bool_)
+    d = np.empty(L)
+    for i in range(n):
+        if axis[i]:
+            base = cv[i] * W + cu[i] - half
+            stride = 1
+        else:
+            base = (cv[i] - half) * W + cu[i]
+            stride = W
+        for j in range(L):
+            p = base + j * stride
+            bg = 0.0
+            for c in range(k1):
+                bg += stack[p, c] * coeff[c]
+            d[j] = frame.flat[p] - bg
+        i1 = -1
+        i2 = -1
+        for j in range(L):
+            if abs(d[j]) > threshold:
+                if i1 < 0:
+                    i1 = j
+                i2 = j
+        if i1 < 2 or i2 > L - 3 or i2 - i1 < 2:
+            continue
+        s1 = 1.0 if d[i1] > 0 else -1.0
+        s2 = 1.0 if d[i2] > 0 else -1.0
+        r1 = -1e30
+        r2 = -1e30
+        for j in range(3):
+            if d[i1 + j] * s1 > r1:
+                r1 = d[i1 + j] * s1
+            if d[i2 - j] * s2 > r2:
+                r2 = d[i2 - j] * s2
+        if r1 <= threshold or r2 <= threshold:
+            continue
+        w1 = 0.0
+        w2 = 0.0
+        for j in range(-1, 2):
+            a = d[i1 + j] * s1 / r1
+            w1 += 0.0 if a < 0.0 else (1.0 if a > 1.0 else a)
+            b = d[i2 - j] * s2 / r2
+            w2 += 0.0 if b < 0.0 else (1.0 if b > 1.0 else b)
+        e1[i] = i1 + 1.5 - w1
+        e2[i] = i2 - 1.5 + w2
+        ok[i] = True
+    return e1, e2, ok
+
+
+@njit(cache=True, nogil=True)
+def coarse_foreground_nb(frame, factor, lo, hi, rx0, ry0, rx1, ry1, mean_c, basis_c, thr_c, coeff):
+    """Coarse foreground mask of the ROI: |2x2 average - background| > threshold, per coarse pixel.
+
+    Returns the (ry1-ry0, rx1-rx0) uint8 mask and the largest ``|res| - thr``.
+    """
+    k = basis_c.shape[0]
+    hr = ry1 - ry0
+    wr = rx1 - rx0
+    mask = np.zeros((hr, wr), np.uint8)
+    best = -1e30
+    for y in range(hr):
+        yc = ry0 + y
+        fy0 = yc * factor + lo
+        fy1 = yc * factor + hi
+        for x in range(wr):
+            xc = rx0 + x
+            fx0 = xc * factor + lo
+            fx1 = xc * factor + hi
+            v = 0.25 * (np.float64(frame[fy0, fx0]) + frame[fy0, fx1] + frame[fy1, fx0] + frame[fy1, fx1])
+            r = v - mean_c[yc, xc]
+            for j in range(k):
+                r -= coeff[j + 1] * basis_c[j, yc, xc]
+            e = abs(r) - thr_c[yc, xc]
+            if e > 0.0:
+                mask[y, x] = 1
+            if e > best:
+                best = e
+    return mask, best
+
+
+@njit(cache=True, nogil=True)
+def bfs_path_nb(mask, sy, sx):
+    """Breadth-first path in an 8-connected mask from (sy, sx) to the farthest pixel (ties: farthest in the plane).
+
+    Returns (n, 2) int64 (y, x), start first.
+    """
+    h, w = mask.shape
+    pred = np.full(h * w, -2, np.int64)
+    dist = np.full(h * w, -1, np.int64)
+    queue = np.empty(h * w, np.int64)
+    s = sy * w + sx
+    pred[s] = -1
+    dist[s] = 0
+    head = 0
+    tail = 1
+    queue[0] = s
+    while head < tail:
+        node = queue[head]
+        head += 1
+        y = node // w
+        x = node - y * w
+        for dy in range(-1, 2):
+            yy = y + dy
+            if yy < 0 or yy >= h:
+                continue
+            for dx in range(-1, 2):
+                xx = x + dx
+                if (dy == 0 and dx == 0) or xx < 0 or xx >= w:
+                    continue
+                m = yy * w + xx
+                if mask[yy, xx] and pred[m] == -2:
+                    pred[m] = node
+                    dist[m] = dist[node] + 1
+                    queue[tail] = m
+                    tail += 1
+    dmax = dist[queue[tail - 1]]
+    end = queue[tail - 1]
+    best = -1.0
+    for q in range(tail):
+        node = queue[q]
+        if dist[node] == dmax:
+            y = node // w
+            x = node - y * w
+            e = (y - sy) ** 2 + (x - sx) ** 2
+            if e > best:
+                best = e
+                end = node
+    n = dist[end] + 1
+    path = np.empty((n, 2), np.int64)
+    node = end
+    for q in range(n - 1, -1, -1):
+        path[q, 0] = node // w
+        path[q, 1] = node - (node // w) * w
+        node = pred[node]
+    return path
+
+
+@njit(cache=True, nogil=True)
+def rays_nb(uv, K, dist, R, baseline, e1, e2, epipole, iterations):
+    """Pixels -> unnormalized world ray directions, epipolar angles and conditioning, in one pass.
+
+    Same as ``_pixels_to_normalized`` + ``R @ [x, y, 1]`` + :meth:`EpipolarFrame.phi`
+    + :func:`recon.epipolar.conditioning` (tangent by central differences).
+    """
+    n = uv.shape[0]
+    xy = np.empty((n, 2))
+    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
+    for i in range(n):
+        y0 = (uv[i, 1] - K[1, 2]) / K[1, 1]
+        x0 = (uv[i, 0] - K[0, 2] - K[0, 1] * y0) / K[0, 0]
+        x = x0
+        y = y0
+        for _ in range(iterations):
+            r2 = x * x + y * y
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            xy2 = 2.0 * x * y
+            xn = (x0 - (p1 * xy2 + p2 * (r2 + 2.0 * x * x))) / radial
+            yn = (y0 - (p1 * (r2 + 2.0 * y * y) + p2 * xy2)) / radial
+            x = xn
+            y = yn
+        xy[i, 0] = x
+        xy[i, 1] = y
+    dirs = np.empty((n, 3))
+    phi = np.empty(n)
+    cond = np.empty(n)
+    bx, by, bz = baseline[0], baseline[1], baseline[2]
+    ex, ey, ez = epipole[0], epipole[1], epipole[2]
+    for i in range(n):
+        x = xy[i, 0]
+        y = xy[i, 1]
+        dx = R[0, 0] * x + R[0, 1] * y + R[0, 2]
+        dy = R[1, 0] * x + R[1, 1] * y + R[1, 2]
+        dz = R[2, 0] * x + R[2, 1] * y + R[2, 2]
+        dirs[i, 0] = dx
+        dirs[i, 1] = dy
+        dirs[i, 2] = dz
+        nx = by * dz - bz * dy
+        ny = bz * dx - bx * dz
+        nz = bx * dy - by * dx
+        phi[i] = np.arctan2(nx * e2[0] + ny * e2[1] + nz * e2[2], nx * e1[0] + ny * e1[1] + nz * e1[2])
+        a = i - 1 if i > 0 else 0
+        b = i + 1 if i < n - 1 else n - 1
+        tx = xy[b, 0] - xy[a, 0]
+        ty = xy[b, 1] - xy[a, 1]
+        tn = np.sqrt(tx * tx + ty * ty) + 1e-300
+        lx = ex - x * ez
+        ly = ey - y * ez
+        ln = np.sqrt(lx * lx + ly * ly) + 1e-300
+        cond[i] = abs(tx * ly - ty * lx) / (tn * ln)
+    return dirs, phi, cond
+
+
+# ----------------------------------------------------------------------------- spline fits
+@njit(cache=True, nogil=True)
+def spline_fit_nb(idx, b, y, ok, w, P, smoothing):
+    """Penalized least-squares coefficients of a uniform cubic B-spline from its banded design.
+
+    ``idx`` (n,) first basis function of each row, ``b`` (n, 4) its weights,
+    ``y`` (n, d), ``ok`` rows used, ``w`` row weights, ``P`` (m, m) penalty.
+    """
+    m = P.shape[0]
+    dim = y.shape[1]
+    AtA = np.zeros((m, m))
+    Aty = np.zeros((m, dim))
+    for r in range(idx.shape[0]):
+        if not ok[r]:
+            continue
+        i0 = idx[r]
+        wr = w[r]
+        for a in range(4):
+            wa = b[r, a] * wr
+            for c in range(4):
+                AtA[i0 + a, i0 + c] += wa * b[r, c]
+            for k in range(dim):
+                Aty[i0 + a, k] += wa * y[r, k]
+    tr = 0.0
+    for a in range(m):
+        tr += AtA[a, a]
+    lam = smoothing * tr / m
+    return np.linalg.solve(AtA + lam * P, Aty)
+
+
+@njit(cache=True, nogil=True)
+def spline_eval_nb(idx, b, coef):
+    n = idx.shape[0]
+    dim = coef.shape[1]
+    out = np.zeros((n, dim))
+    for r in range(n):
+        i0 = idx[r]
+        for a in range(4):
+            for k in range(dim):
+                out[r, k] += b[r, a] * coef[i0 + a, k]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def spline_robust_nb(idx, b, y, ok, P, smoothing, min_px, n_sigma):
+    """Fit; drop rows off the fit by more than max(n_sigma MAD, min_px); refit. Returns coef, new ok."""
+    w = np.ones(idx.shape[0])
+    coef = spline_fit_nb(idx, b, y, ok, w, P, smoothing)
+    fit = spline_eval_nb(idx, b, coef)
+    n = idx.shape[0]
+    res = np.empty(n)
+    cnt = 0
+    for r in range(n):
+        dx = y[r, 0] - fit[r, 0]
+        dy = y[r, 1] - fit[r, 1]
+        res[r] = np.sqrt(dx * dx + dy * dy)
+        if ok[r]:
+            cnt += 1
+    sel = np.empty(cnt)
+    j = 0
+    for r in range(n):
+        if ok[r]:
+            sel[j] = res[r]
+            j += 1
+    mad = 1.4826 * np.median(sel) + 1e-3
+    lim = max(n_sigma * mad, min_px)
+    new_ok = ok.copy()
+    changed = 0
+    for r in range(n):
+        if ok[r] and res[r] >= lim:
+            new_ok[r] = False
+            changed += 1
+    if changed > 0 and cnt - changed >= 4:
+        coef = spline_fit_nb(idx, b, y, new_ok, w, P, smoothing)
+    return coef, new_ok
+
+
+# ----------------------------------------------------------------------------- background fits
+@njit(cache=True, nogil=True)
+def frame_coefficients_nb(frame_flat, sample_index, sample_mean, Bt, G, thr):
+    """:func:`recon.subpixel.frame_coefficients` (``G`` includes the prior). Returns c (k,) and the sample max."""
+    M = sample_index.shape[0]
+    k = Bt.shape[1]
+    r = np.empty(M)
+    fmax = 0.0
+    for i in range(M):
+        v = 0.25 * (np.float64(frame_flat[sample_index[i, 0]]) + frame_flat[sample_index[i, 1]]
+                    + frame_flat[sample_index[i, 2]] + frame_flat[sample_index[i, 3]])
+        if v > fmax:
+            fmax = v
+        r[i] = v - sample_mean[i]
+    rhs = np.zeros(k)
+    for i in range(M):
+        for j in range(k):
+            rhs[j] += Bt[i, j] * r[i]
+    c = np.linalg.solve(G, rhs)
+    G2 = G.copy()
+    rhs2 = rhs.copy()
+    out = 0
+    for i in range(M):
+        e = r[i]
+        for j in range(k):
+            e -= Bt[i, j] * c[j]
+        if abs(e) > 0.5 * thr[i]:
+            out += 1
+            for a in range(k):
+                rhs2[a] -= Bt[i, a] * r[i]
+                for b2 in range(k):
+                    G2[a, b2] -= Bt[i, a] * Bt[i, b2]
+    if out > 0:
+        c = np.linalg.solve(G2, rhs2)
+    return c, fmax
+
+
+@njit(cache=True, nogil=True)
+def frame_shift_nb(frame_flat, mean_flat, W, H, idx, D, G, iterations):
+    """:func:`recon.subpixel.frame_shift` without the final plausibility check: returns (du, dv)."""
+    n = idx.shape[0]
+    f = np.empty(n)
+    for i in range(n):
+        f[i] = frame_flat[idx[i]]
+    rhs = np.zeros(6)
+    for i in range(n):
+        for a in range(6):
+            rhs[a] += D[i, a] * f[i]
+    beta = np.linalg.solve(G, rhs)
+    res = np.empty(n)
+    for i in range(n):
+        e = f[i]
+        for a in range(6):
+            e -= D[i, a] * beta[a]
+        res[i] = abs(e)
+    s = 1.4826 * np.median(res) + 1e-6
+    keep = res <= 4.0 * s
+    G2 = G.copy()
+    rhs2 = rhs.copy()
+    nbad = 0
+    for i in range(n):
+        if not keep[i]:
+            nbad += 1
+            for a in range(6):
+                rhs2[a] -= D[i, a] * f[i]
+                for b2 in range(6):
+                    G2[a, b2] -= D[i, a] * D[i, b2]
+    if nbad > 0:
+        beta = np.linalg.solve(G2, rhs2)
+    du = beta[4] / beta[0]
+    dv = beta[5] / beta[0]
+    row = np.empty(6)
+    for _ in range(iterations):
+        if not (np.isfinite(du) and np.isfinite(dv)) or du * du + dv * dv > 9.0:
+            break
+        GG = np.zeros((6, 6))
+        rr = np.zeros(6)
+        for i in range(n):
+            if not keep[i]:
+                continue
+            p = idx[i]
+            y = p // W
+            x = p - y * W
+            u = min(max(x - du, 0.0), W - 2.001)
+            v = min(max(y - dv, 0.0), H - 2.001)
+            u0 = int(np.floor(u))
+            v0 = int(np.floor(v))
+            fu = u - u0
+            fv = v - v0
+            q = v0 * W + u0
+            m00 = mean_flat[q]
+            m01 = mean_flat[q + 1]
+            m10 = mean_flat[q + W]
+            m11 = mean_flat[q + W + 1]
+            mv = (1 - fv) * ((1 - fu) * m00 + fu * m01) + fv * ((1 - fu) * m10 + fu * m11)
+            row[0] = mv
+            row[1] = 1.0
+            row[2] = (x / W - 0.5) * mv
+            row[3] = (y / H - 0.5) * mv
+            row[4] = -((1 - fv) * (m01 - m00) + fv * (m11 - m10))
+            row[5] = -((1 - fu) * (m10 - m00) + fu * (m11 - m01))
+            for a in range(6):
+                rr[a] += row[a] * f[i]
+                for b2 in range(6):
+                    GG[a, b2] += row[a] * row[b2]
+        beta = np.linalg.solve(GG, rr)
+        du += beta[4] / beta[0]
+        dv += beta[5] / beta[0]
+    return du, dv
+
+
+# ----------------------------------------------------------------------------- tip
+@njit(cache=True, nogil=True)
+def tip_along_axis_nb(frame, stack, coeff, p_end, t_end, radius_px, threshold, back_px, ahead_px, step):
+    """:func:`recon.subpixel._tip_along_axis`: median silhouette end (px along the axis), NaN if none."""
+    H, W = frame.shape
+    nx, ny = -t_end[1], t_end[0]
+    offs = np.array([-0.45, -0.2, 0.0, 0.2, 0.45]) * radius_px
+    T = int(np.floor((ahead_px + back_px) / step + 1e-9)) + 1
+    n_in = int(round(2.0 / step))
+    k1 = coeff.shape[0]
+    ends = np.empty(5)
+    n_end = 0
+    d = np.empty(T)
+    for li in range(5):
+        good = True
+        for j in range(T):
+            t = -back_px + j * step
+            u = p_end[0] + t * t_end[0] + offs[li] * nx
+            v = p_end[1] + t * t_end[1] + offs[li] * ny
+            if u < 0 or v < 0 or u > W - 1 or v > H - 1:
+                good = False
+                break
+            u = min(u, W - 1.001)
+            v = min(v, H - 1.001)
+            u0 = int(np.floor(u))
+            v0 = int(np.floor(v))
+            fu = u - u0
+            fv = v - v0
+            acc = 0.0
+            for du in range(2):
+                for dv in range(2):
+                    wgt = (fu if du else 1 - fu) * (fv if dv else 1 - fv)
+                    p = (v0 + dv) * W + u0 + du
+                    bg = 0.0
+                    for c in range(k1):
+                        bg += stack[p, c] * coeff[c]
+                    acc += wgt * (frame.flat[p] - bg)
+            d[j] = acc
+        if not good:
+            continue
+        last = -1
+        cnt_above = 0
+        for j in range(T):
+            if abs(d[j]) > threshold:
+                last = j
+        if last < 0:
+            continue
+        j0 = last - n_in
+        if j0 < 2 or last > T - 4:
+            continue
+        for j in range(j0 + 1):
+            if abs(d[j]) > threshold:
+                cnt_above += 1
+        if not cnt_above > 0.7 * (j0 + 1):
+            continue
+        sgn = 1.0 if d[last] > 0 else -1.0
+        ref = -1e30
+        for j in range(j0 - 2, j0 + n_in + 1):
+            if d[j] * sgn > ref:
+                ref = d[j] * sgn
+        if ref <= threshold:
+            continue
+        cov = 0.0
+        for j in range(j0 + 1, j0 + n_in + 5):
+            jj = min(j, T - 1)
+            a = d[jj] * sgn / ref
+            cov += 0.0 if a < 0.0 else (1.0 if a > 1.0 else a)
+        ends[n_end] = -back_px + j0 * step + 0.5 * step + step * cov
+        n_end += 1
+    if n_end == 0:
+        return np.nan
+    return np.median(ends[:n_end])
+
+
+@njit(cache=True, nogil=True)
+def project_nb(P, K, dist, T):
+    """World points (n, 3) -> distorted pixels (n, 2) and depths (n,), as :meth:`Camera.project`."""
+    n = P.shape[0]
+    uv = np.empty((n, 2))
+    z = np.empty(n)
+    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
+    for i in range(n):
+        xc = T[0, 0] * P[i, 0] + T[0, 1] * P[i, 1] + T[0, 2] * P[i, 2] + T[0, 3]
+        yc = T[1, 0] * P[i, 0] + T[1, 1] * P[i, 1] + T[1, 2] * P[i, 2] + T[1, 3]
+        zc = T[2, 0] * P[i, 0] + T[2, 1] * P[i, 1] + T[2, 2] * P[i, 2] + T[2, 3]
+        z[i] = zc
+        x = xc / zc
+        y = yc / zc
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        uv[i, 0] = K[0, 0] * xd + K[0, 1] * yd + K[0, 2]
+        uv[i, 1] = K[1, 1] * yd + K[1, 2]
+    return uv, z

@@ -1,0 +1,608 @@
+"""The ``fast`` method: sub-pixel centerlines, epipolar correspondence, triangulation (docs/fast-method.md).
+
+Per view (:mod:`recon.subpixel`): a coarse (1/4 resolution) eigenbackground
+difference finds the robot and its base-to-tip path; full-resolution profiles
+across the tube, with the background rebuilt on their pixels only, give
+sub-pixel edges, hence the tube's centre and width every pixel along it; a
+least-squares B-spline smooths the centres (outliers rejected); the tip is
+measured along the axis.
+
+In 3D (:mod:`recon.epipolar`): the two ordered centerlines are matched by
+their epipolar-plane angle (dynamic programming under the ordering constraint
+when that angle is not monotonic), matched rays are triangulated, and a
+weighted least-squares B-spline (weights from how well each match is
+conditioned) gives the backbone, resampled by arc length. The backbone is
+continued straight back to the base plane and forward to the tip measured in
+both views (allowing for the tube's end cap seen at an angle). The
+outer/inner transition is where the measured width steps down.
+
+Across frames (:mod:`recon.temporal`): each backbone is compared with the
+previous frame's; an implausible jump sets ``jump_flag`` and ``jump_reason``
+on the result.
+
+Everything is in float32/float64 numpy on one core; no per-pixel work is done
+outside ~1 % of the full-resolution pixels.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from .background import EigenBackgroundParams, fit_eigenbackground
+from .carving import rig_center
+from .epipolar import EpipolarFrame, align_dp, conditioning, monotonic, triangulate_rays
+from .errors import FrameError
+from .methods import Method, register_method
+from .paper import camera_order
+from .rigcal import RigCalibration
+from . import subpixel
+from .subpixel import ViewCenterline, ViewModel, extract_view, fit_curve, prepare_view
+
+if subpixel.HAVE_NUMBA:
+    from ._kernels import project_nb, rays_nb, spline_fit_nb
+from .temporal import JumpLimits, jump_check
+
+__all__ = ["FastParams", "FastModel", "FastReconstruction", "prepare_fast", "FastReconstructor"]
+
+
+@dataclass(frozen=True)
+class FastParams:
+    """Parameters of the fast method (defaults: the documented values, docs/fast-method.md).
+
+    Attributes
+    ----------
+    background : EigenBackgroundParams
+        Eigenbackgrounds (as the paper: 5).
+    outer_tube_radius_mm, inner_tube_radius_mm : float
+        Tube radii (mm): widths expected in the images, and the end cap.
+    coarse_factor : int
+        Downsampling of the coarse stage.
+    coarse_threshold_sigma, coarse_threshold_min_dn : float
+        Coarse foreground threshold: at least this many noise sigmas and gray
+        levels (and above the pixel's own background residual, see
+        :func:`recon.subpixel.prepare_view`).
+    base_search_px : float
+        The robot's region must come within this distance (px) of the
+        projected base.
+    roi_margin_px : float
+        The robot is looked for within the previous frame's region plus this
+        margin (px); the whole frame when it is lost or outgrows that.
+    sparse_step_px : float
+        Spacing of the first, wide profiles that re-centre the coarse path (px).
+    profile_step_px : float
+        Spacing of the measuring profiles across the tube along its path (px).
+    edge_threshold_sigma, edge_min_dn : float
+        A profile sample is tube when its difference exceeds this many sigmas
+        and gray levels.
+    min_width_fraction, max_width_fraction : float
+        Profiles narrower than this fraction of the inner tube's width, or
+        wider than this fraction of the outer tube's, are rejected.
+    outlier_sigma, outlier_min_px : float
+        A centre farther than ``max(outlier_sigma * MAD, outlier_min_px)``
+        from the spline is rejected.
+    spline_knot_px : float
+        Knot spacing of the per-view centerline spline (px).
+    sample_step_px : float
+        Sampling of the per-view curves for correspondence (px).
+    knot_mm : float
+        Knot spacing of the 3D backbone spline (mm).
+    output_step_mm : float
+        Spacing of the output backbone points (mm).
+    max_ray_gap_mm : float
+        Matched rays that pass farther apart than this are dropped.
+    max_base_gap_mm : float
+        The backbone is continued back to the base plane only if its first
+        point is at most this far from it (mm).
+    jitter_compensation : bool
+        Measure each frame's image shift against the background's static
+        edges (camera jitter) and undo it before triangulating.
+    jump : JumpLimits
+        Largest plausible change between consecutive frames.
+    """
+
+    background: EigenBackgroundParams = field(default_factory=EigenBackgroundParams)
+    outer_tube_radius_mm: float = 0.8
+    inner_tube_radius_mm: float = 0.5
+    coarse_factor: int = 4
+    coarse_threshold_sigma: float = 6.0
+    coarse_threshold_min_dn: float = 6.0
+    base_search_px: float = 24.0
+    roi_margin_px: float = 64.0
+    sparse_step_px: float = 6.0
+    profile_step_px: float = 2.0
+    edge_threshold_sigma: float = 5.0
+    edge_min_dn: float = 12.0
+    min_width_fraction: float = 0.6
+    max_width_fraction: float = 1.3
+    outlier_sigma: float = 4.0
+    outlier_min_px: float = 0.5
+    spline_knot_px: float = 40.0
+    sample_step_px: float = 4.0
+    knot_mm: float = 4.0
+    output_step_mm: float = 0.5
+    max_ray_gap_mm: float = 1.0
+    max_base_gap_mm: float = 6.0
+    jitter_compensation: bool = True
+    jump: JumpLimits = field(default_factory=JumpLimits)
+
+    def __post_init__(self):
+        if int(self.coarse_factor) < 1:
+            raise ValueError(f"FastParams.coarse_factor must be >= 1, got {self.coarse_factor}")
+        if not 0 < self.inner_tube_radius_mm < self.outer_tube_radius_mm:
+            raise ValueError("FastParams: need 0 < inner_tube_radius_mm < outer_tube_radius_mm")
+        for name in ("profile_step_px", "spline_knot_px", "sample_step_px", "knot_mm", "output_step_mm"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"FastParams.{name} must be > 0, got {getattr(self, name)}")
+
+
+@dataclass(frozen=True, eq=False)
+class FastModel:
+    """What the fast method needs besides the frames (built by :func:`prepare_fast`)."""
+
+    rig: RigCalibration
+    pair: tuple
+    views: dict
+    epipolar: EpipolarFrame
+    epipoles: dict
+    R_world_cam: dict
+
+
+class _LazyImages(Mapping):
+    """Camera name -> image, drawn on first access (the method itself never needs them)."""
+
+    def __init__(self, names, draw):
+        self._names = tuple(names)
+        self._draw = draw
+        self._cache = {}
+
+    def __getitem__(self, name):
+        if name not in self._names:
+            raise KeyError(name)
+        if name not in self._cache:
+            self._cache[name] = self._draw(name)
+        return self._cache[name]
+
+    def __iter__(self):
+        return iter(self._names)
+
+    def __len__(self):
+        return len(self._names)
+
+
+@dataclass(frozen=True, eq=False)
+class FastReconstruction:
+    """One reconstructed frame pair (the attributes of :class:`recon.paper.Reconstruction`, and more).
+
+    Attributes
+    ----------
+    points_world_mm : (m, 3)
+        Backbone, base first, every ``output_step_mm`` of arc length (world, mm).
+    tip_world_mm : (3,)
+    transition_s_mm : float
+        Arc length of the outer tube's end (mm); NaN if not seen.
+    transition_world_mm : (3,)
+    length_mm : float
+    silhouettes : mapping name -> (H, W) bool
+        The tube outline drawn from the measured centres and widths (drawn on
+        first access).
+    centerlines : mapping name -> (H, W) uint8
+        Accepted centres rasterized, 1 outer tube, 2 inner (on first access).
+    centerlines_px : dict name -> (n, 2)
+        Sub-pixel centres, base to tip (px).
+    widths_px : dict name -> (n,)
+    box : tuple
+        Bounds of the backbone (world, mm).
+    voxel_size_mm : None
+        No voxels (present for interface compatibility).
+    n_voxels : int
+        0.
+    jump_flag : bool
+        The shape jumped implausibly from the previous frame's
+        (:mod:`recon.temporal`).
+    jump_reason : str or None
+    ray_gap_mm : float
+        Median distance between matched rays (mm): calibration consistency.
+    correspondence : str
+        ``"epipolar-angle"`` or ``"ordered-dp"`` (the fallback).
+    timings_ms : dict
+        ``view_<name>`` per camera, ``triangulate``, ``total``.
+    """
+
+    points_world_mm: np.ndarray
+    tip_world_mm: np.ndarray
+    transition_s_mm: float
+    transition_world_mm: np.ndarray
+    length_mm: float
+    silhouettes: Mapping
+    centerlines: Mapping
+    centerlines_px: dict
+    widths_px: dict
+    box: tuple
+    voxel_size_mm: object
+    n_voxels: int
+    jump_flag: bool
+    jump_reason: object
+    ray_gap_mm: float
+    correspondence: str
+    timings_ms: dict
+
+
+# ----------------------------------------------------------------------------- prepare
+def prepare_fast(rig: RigCalibration, background_frames: dict, params: FastParams = FastParams()) -> FastModel:
+    """Fit the eigenbackgrounds and the per-view constants.
+
+    Raises
+    ------
+    ValueError
+        Fewer than two cameras, a camera without background frames, or
+        background frames of the wrong size.
+    """
+    names = camera_order(rig.names)
+    if len(names) < 2:
+        raise ValueError(f"the fast method needs two cameras, the rig has {len(names)}")
+    pair = names[:2]
+    views = {}
+    for name in pair:
+        cam = rig[name]
+        if name not in background_frames:
+            raise ValueError(f"{name}: no background frames")
+        frames = np.asarray(background_frames[name])
+        if frames.ndim == 4:
+            frames = np.stack([cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames])
+        try:
+            eig = fit_eigenbackground(frames, params.background)
+        except ValueError as exc:
+            raise ValueError(f"{name}: {exc}") from None
+        if eig.shape != (cam.height, cam.width):
+            raise ValueError(f"{name}: background frames are {eig.shape[1]}x{eig.shape[0]} but the camera is {cam.width}x{cam.height}")
+        views[name] = prepare_view(
+            name, eig, cam, rig.base_point_world_mm, rig.insertion_axis_world,
+            params.outer_tube_radius_mm, params.inner_tube_radius_mm, frames,
+            factor=int(params.coarse_factor), threshold_sigma=params.coarse_threshold_sigma,
+            threshold_min_dn=params.coarse_threshold_min_dn,
+        )
+    ca, cb = rig[pair[0]], rig[pair[1]]
+    ef = EpipolarFrame.from_cameras(ca, cb, rig_center([ca, cb]))
+    epipoles = {
+        pair[0]: ca.T_cam_world[:3, :3] @ (cb.center_world_mm - ca.center_world_mm),
+        pair[1]: cb.T_cam_world[:3, :3] @ (ca.center_world_mm - cb.center_world_mm),
+    }
+    R = {n: rig[n].T_world_cam[:3, :3] for n in pair}
+    return FastModel(rig=rig, pair=pair, views=views, epipolar=ef, epipoles=epipoles, R_world_cam=R)
+
+
+# ----------------------------------------------------------------------------- 3D
+def _arc(points: np.ndarray) -> np.ndarray:
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+
+
+def _resample(points: np.ndarray, step: float) -> np.ndarray:
+    s = _arc(points)
+    n = max(2, int(np.floor(s[-1] / step)) + 1)
+    t = np.linspace(0.0, s[-1], n) if s[-1] > 0 else np.zeros(2)
+    return np.stack([np.interp(t, s, points[:, j]) for j in range(3)], axis=1)
+
+
+@dataclass(frozen=True, eq=False)
+class _ViewSamples:
+    s: np.ndarray
+    uv: np.ndarray
+    dirs: np.ndarray
+    phi: np.ndarray
+    cond: np.ndarray
+
+
+def _pixels_to_normalized(cam, uv: np.ndarray, iterations: int = 5) -> np.ndarray:
+    """:meth:`Camera.pixels_to_normalized` with fewer fixed-point iterations.
+
+    Each iteration shrinks the error by about ``3 |k1| r^2`` (~1 % at this
+    rig's image corners), so 5 reach ~1e-10, like the camera's 20.
+    """
+    K = cam.K
+    y = (uv[:, 1] - K[1, 2]) / K[1, 1]
+    x = (uv[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    dist = cam.dist
+    if not np.any(dist):
+        return np.stack([x, y], axis=1)
+    k1, k2, p1, p2, k3 = dist
+    x0, y0 = x, y
+    for _ in range(iterations):
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xy2 = 2.0 * x * y
+        x = (x0 - (p1 * xy2 + p2 * (r2 + 2.0 * x * x))) / radial
+        y = (y0 - (p1 * (r2 + 2.0 * y * y) + p2 * xy2)) / radial
+    return np.stack([x, y], axis=1)
+
+
+def _view_samples(model: FastModel, name: str, vc: ViewCenterline, step: float) -> _ViewSamples:
+    cam = model.rig[name]
+    s0, s1 = vc.s_range
+    n = max(4, int(np.ceil((s1 - s0) / step)) + 1)
+    s = np.linspace(s0, s1, n)
+    uv = vc.curve(s) - vc.shift_px
+    R = model.R_world_cam[name]
+    if subpixel.USE_NUMBA:
+        ef = model.epipolar
+        d, phi, cond = rays_nb(uv, cam.K, cam.dist, R, ef.baseline, ef.e1, ef.e2, model.epipoles[name], 5)
+        return _ViewSamples(s=s, uv=uv, dirs=d, phi=phi, cond=cond)
+    xy = _pixels_to_normalized(cam, uv)
+    d = xy @ R[:, :2].T + R[:, 2]  # unnormalized ray directions (world)
+    return _ViewSamples(s=s, uv=uv, dirs=d, phi=model.epipolar.phi(d), cond=conditioning(xy, model.epipoles[name]))
+
+
+def _project(cam, P: np.ndarray):
+    if subpixel.USE_NUMBA:
+        return project_nb(P, cam.K, cam.dist, cam.T_cam_world)
+    return cam.project(P)
+
+
+def _fit_weighted(q: np.ndarray, X: np.ndarray, spacing: float, w: np.ndarray):
+    """:func:`recon.subpixel.fit_curve` with row weights (banded and compiled when numba is there)."""
+    if not subpixel.USE_NUMBA:
+        return fit_curve(q, X, spacing, w=w)
+    s0, s1 = float(q[0]), float(q[-1])
+    n_int = max(1, int(np.ceil((s1 - s0) / spacing - 1e-9)))
+    h = max((s1 - s0) / n_int, 1e-9)
+    idx, b = subpixel.UniformSpline.basis(q, s0, h, n_int)
+    coef = spline_fit_nb(idx, b, X, np.ones(len(q), np.bool_), w, subpixel._penalty(n_int + 3), 1e-4)
+    return subpixel.UniformSpline(s0, h, n_int, coef)
+
+
+def _unit3(d: np.ndarray) -> np.ndarray:
+    return d / np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+
+
+def _interp_rows(x, xp, fp):
+    return np.stack([np.interp(x, xp, fp[:, j]) for j in range(fp.shape[1])], axis=1)
+
+
+def _strictly_increasing(x: np.ndarray) -> np.ndarray:
+    x = np.maximum.accumulate(x)
+    return x + np.arange(x.size) * 1e-12
+
+
+def _correspond(a: _ViewSamples, b: _ViewSamples, tol: float):
+    """Matched (s_a, s_b, dir_a, dir_b, cond_a, cond_b) and the method used."""
+    ma, mb = monotonic(a.phi, tol), monotonic(b.phi, tol)
+    if ma != 0 and ma == mb:
+        pa = _strictly_increasing(ma * a.phi)
+        pb = _strictly_increasing(ma * b.phi)
+        lo, hi = max(pa[0], pb[0]), min(pa[-1], pb[-1])
+        if not hi > lo:
+            raise FrameError("the two views do not overlap along the epipolar lines (calibration or wrong region)")
+        q = np.concatenate([pa[(pa >= lo) & (pa <= hi)], pb[(pb >= lo) & (pb <= hi)]])
+        q = np.unique(q)
+        sa = np.interp(q, pa, a.s)
+        sb = np.interp(q, pb, b.s)
+        da = _unit3(_interp_rows(q, pa, a.dirs))
+        db = _unit3(_interp_rows(q, pb, b.dirs))
+        ca = np.interp(q, pa, a.cond)
+        cb = np.interp(q, pb, b.cond)
+        return sa, sb, da, db, ca, cb, "epipolar-angle"
+    # Not monotonic in both views: ordered alignment.
+    ka = np.unique(np.linspace(0, a.s.size - 1, min(a.s.size, 160)).round().astype(int))
+    kb = np.unique(np.linspace(0, b.s.size - 1, min(b.s.size, 160)).round().astype(int))
+    fa = (a.s[ka] - a.s[0]) / max(a.s[-1] - a.s[0], 1e-9)
+    fb = (b.s[kb] - b.s[0]) / max(b.s[-1] - b.s[0], 1e-9)
+    ia, ib = align_dp(a.phi[ka], b.phi[kb], fa, fb, phi_scale=4.0 * tol)
+    ia, ib = ka[ia], kb[ib]
+    return a.s[ia], b.s[ib], _unit3(a.dirs[ia]), _unit3(b.dirs[ib]), a.cond[ia], b.cond[ib], "ordered-dp"
+
+
+def _transition_s(vc: ViewCenterline, model: ViewModel) -> float:
+    """Curve parameter where the measured width steps from outer to inner tube; NaN if no step."""
+    w = vc.width_px
+    if w.size < 8:
+        return np.nan
+    outer = w > (model.outer_radius_px + model.inner_radius_px)
+    # k: first inner sample; cost = inner before k + outer from k on.
+    c_in = np.concatenate([[0], np.cumsum(~outer)])
+    c_out = np.concatenate([[0], np.cumsum(outer)])
+    cost = c_in + (c_out[-1] - c_out)
+    k = int(np.argmin(cost))
+    if k < 3 or k > w.size - 3:
+        return np.nan
+    return 0.5 * (vc.s[k - 1] + vc.s[k])
+
+
+def _draw_silhouette(vc: ViewCenterline, shape) -> np.ndarray:
+    img = np.zeros(shape, np.uint8)
+    p = vc.points_px
+    sh = 4
+    pts = np.rint(p * (1 << sh)).astype(np.int32)
+    for i in range(len(p) - 1):
+        th = max(1, int(round(0.5 * (vc.width_px[i] + vc.width_px[i + 1]))))
+        cv2.line(img, tuple(pts[i]), tuple(pts[i + 1]), 1, th, cv2.LINE_8, sh)
+    return img.astype(bool)
+
+
+def _draw_centerline(vc: ViewCenterline, shape, s_trans: float) -> np.ndarray:
+    img = np.zeros(shape, np.uint8)
+    p = np.rint(vc.points_px * 16).astype(np.int32)
+    lab = np.where(np.isfinite(s_trans) & (vc.s > s_trans), 2, 1) if np.isfinite(s_trans) else np.ones(len(p), int)
+    for i in range(len(p) - 1):
+        cv2.line(img, tuple(p[i]), tuple(p[i + 1]), int(lab[i]), 1, cv2.LINE_8, 4)
+    return img
+
+
+class FastReconstructor:
+    """The per-frame callable of the fast method (keeps the previous frame for the jump check)."""
+
+    def __init__(self, model: FastModel, params: FastParams = FastParams()):
+        self.model = model
+        self.params = params
+        self._prev = None
+        self._roi = {}
+
+    def reset(self) -> None:
+        """Forget the previous frame (e.g. at a cut in the sequence)."""
+        self._prev = None
+        self._roi = {}
+
+    def __call__(self, frames: dict) -> FastReconstruction:
+        model, params = self.model, self.params
+        timings = {}
+        t_start = t = time.perf_counter()
+        views = {}
+        detail = {}
+        for name in model.pair:
+            if name not in frames or frames[name] is None:
+                raise FrameError("no frame", name)
+        for name in model.pair:
+            stages = {}
+            roi = self._roi.get(name)
+            try:
+                views[name] = extract_view(model.views[name], frames[name], params, roi=roi, timings=stages)
+            except FrameError:
+                self._roi.pop(name, None)
+                raise
+            m = max(1, int(np.ceil(params.roi_margin_px / model.views[name].factor)))
+            x0, y0, x1, y1 = views[name].coarse.coarse_bbox
+            self._roi[name] = (x0 - m, y0 - m, x1 + m, y1 + m)
+            now = time.perf_counter()
+            timings[f"view_{name}"] = 1e3 * (now - t)
+            for k, v in stages.items():
+                detail[f"{name}_{k}"] = v
+            t = now
+        a, b = model.pair
+        rig = model.rig
+        sa_, sb_ = (_view_samples(model, n, views[n], params.sample_step_px) for n in (a, b))
+        lap = time.perf_counter()
+        detail["rays"] = 1e3 * (lap - t)
+        tol = 2.0 / float(rig[a].K[0, 0])  # ~2 px of epipolar angle
+        s_a, s_b, da, db, ca, cb, how = _correspond(sa_, sb_, tol)
+        X, gap = triangulate_rays(model.epipolar.center_a, da, model.epipolar.center_b, db)
+        keep = gap < params.max_ray_gap_mm
+        if keep.sum() < 6:
+            raise FrameError(f"the two views disagree: matched rays pass {np.median(gap):.2f} mm apart (more than {params.max_ray_gap_mm:g})")
+        X, s_a, s_b, ca, cb, gap = X[keep], s_a[keep], s_b[keep], ca[keep], cb[keep], gap[keep]
+        q = s_a + s_b
+        order = np.argsort(q, kind="stable")
+        X, q, s_a, s_b, ca, cb = X[order], q[order], s_a[order], s_b[order], ca[order], cb[order]
+        w = np.clip(np.minimum(ca, cb), 0.03, 1.0) ** 2
+        chord = float(np.sum(np.linalg.norm(np.diff(X[:: max(1, len(X) // 40)], axis=0), axis=1)))
+        q_per_mm = (q[-1] - q[0]) / max(chord, 1e-6)
+        spl = _fit_weighted(q, X, params.knot_mm * q_per_mm, w)
+        now = time.perf_counter()
+        detail["match_fit"] = 1e3 * (now - lap)
+        lap = now
+        fine = 0.5 * params.output_step_mm
+        n_dense = max(8, int(chord / fine))
+        qq = np.linspace(q[0], q[-1], n_dense)
+        dense = spl(qq)
+        # Base: continue straight back to the base plane.
+        base = rig.base_point_world_mm
+        axis = rig.insertion_axis_world
+        t0 = spl.derivative()(q[0])
+        t0 /= np.linalg.norm(t0)
+        h = float((dense[0] - base) @ axis)
+        cosb = float(t0 @ axis)
+        base_ext = 0.0
+        if cosb > 0.3 and 0.0 < h / cosb <= params.max_base_gap_mm:
+            base_ext = h / cosb
+            k = max(1, int(np.ceil(base_ext / fine)))
+            back = dense[0] - np.linspace(base_ext, 0.0, k, endpoint=False)[:, None] * t0
+            dense = np.concatenate([back, dense])
+        # Tip: continue to the silhouette ends seen in both views, less the end cap's extent.
+        t1 = spl.derivative()(q[-1])
+        t1 /= np.linalg.norm(t1)
+        x_end = dense[-1]
+        lam_num = lam_den = 0.0
+        tip_radius = params.inner_tube_radius_mm
+        s_tr = {n: _transition_s(views[n], model.views[n]) for n in (a, b)}
+        if not any(np.isfinite(v) for v in s_tr.values()):
+            wend = np.median(np.concatenate([views[n].width_px[-10:] / (2 * model.views[n].outer_radius_px) for n in (a, b)]))
+            if wend > 0.5 * (1 + params.inner_tube_radius_mm / params.outer_tube_radius_mm):
+                tip_radius = params.outer_tube_radius_mm
+        for n in (a, b):
+            cam = rig[n]
+            uv, z = _project(cam, np.stack([x_end, x_end + t1]))
+            g_vec = uv[1] - uv[0]
+            g = float(np.linalg.norm(g_vec))
+            if g < 1e-6:
+                continue
+            off = float((views[n].end_px - views[n].shift_px - uv[0]) @ (g_vec / g))
+            dv = x_end - cam.center_world_mm
+            dv /= np.linalg.norm(dv)
+            cap_px = tip_radius * abs(float(t1 @ dv)) * cam.K[0, 0] / z[0]
+            lam = (off - cap_px) / g
+            lam_num += g * g * lam
+            lam_den += g * g
+        lam = lam_num / lam_den if lam_den > 0 else 0.0
+        if lam > 0:
+            k = max(1, int(np.ceil(lam / fine)))
+            dense = np.concatenate([dense, x_end + np.linspace(lam / k, lam, k)[:, None] * t1])
+        elif lam < 0:
+            s_d = _arc(dense)
+            keep_d = s_d <= s_d[-1] + lam
+            if keep_d.sum() >= 2:
+                cut = _interp_rows(np.array([s_d[-1] + lam]), s_d, dense)
+                dense = np.concatenate([dense[keep_d], cut])
+        points = _resample(dense, params.output_step_mm)
+        length = float(_arc(points)[-1])
+        # Transition: combine the views' estimates through the matched parameters.
+        trans = []
+        for n, s_n, c_n in ((a, s_a, ca), (b, s_b, cb)):
+            st = s_tr[n]
+            if np.isfinite(st) and s_n[0] < st < s_n[-1]:
+                qt = float(np.interp(st, _strictly_increasing(s_n), q))
+                trans.append((qt, float(np.interp(st, _strictly_increasing(s_n), c_n)) + 1e-3))
+        if trans:
+            qt = sum(v * wt for v, wt in trans) / sum(wt for _, wt in trans)
+            dq = _arc(spl(np.linspace(q[0], qt, 64)))[-1]
+            transition_s = float(base_ext + dq)
+            s_pts = _arc(points)
+            transition_world = _interp_rows(np.array([transition_s]), s_pts, points)[0]
+        else:
+            transition_s = float("nan")
+            transition_world = np.full(3, np.nan)
+        now = time.perf_counter()
+        detail["ends"] = 1e3 * (now - lap)
+        timings["triangulate"] = 1e3 * (now - t)
+        tip = points[-1].copy()
+        reason = None
+        if self._prev is not None:
+            reason = jump_check(self._prev[0], self._prev[1], points, tip, params.jump)
+        self._prev = (points, tip)
+        shapes = {n: model.views[n].shape for n in (a, b)}
+        timings["total"] = 1e3 * (time.perf_counter() - t_start)
+        timings.update(detail)
+        return FastReconstruction(
+            points_world_mm=points,
+            tip_world_mm=tip,
+            transition_s_mm=transition_s,
+            transition_world_mm=transition_world,
+            length_mm=length,
+            silhouettes=_LazyImages((a, b), lambda n: _draw_silhouette(views[n], shapes[n])),
+            centerlines=_LazyImages((a, b), lambda n: _draw_centerline(views[n], shapes[n], s_tr[n])),
+            centerlines_px={n: views[n].points_px for n in (a, b)},
+            widths_px={n: views[n].width_px for n in (a, b)},
+            box=(points.min(axis=0), points.max(axis=0)),
+            voxel_size_mm=None,
+            n_voxels=0,
+            jump_flag=reason is not None,
+            jump_reason=reason,
+            ray_gap_mm=float(np.median(gap)),
+            correspondence=how,
+            timings_ms=timings,
+        )
+
+
+def _prepare(rig, background_frames, params):
+    return FastReconstructor(prepare_fast(rig, background_frames, params), params)
+
+
+register_method(
+    Method(
+        "fast",
+        FastParams,
+        _prepare,
+        "sub-pixel edge-midpoint centerlines from a coarse-to-fine eigenbackground, epipolar correspondence, "
+        "triangulation and a smoothing spline; ~ms per pair on one core",
+    )
+)

@@ -1,0 +1,1044 @@
+"""Sub-pixel tube centerline in one view, for the ``fast`` method (:mod:`recon.fast`).
+
+The tube is found coarsely, then measured finely only where it is:
+
+1. **Coarse** (1/4 resolution, the whole frame): the frame is area-averaged
+   by ``coarse_factor``, its eigenbackground coefficients are fitted by least
+   squares on those coarse pixels (a second pass leaves out the pixels the
+   first pass calls foreground), and the coarse difference is thresholded
+   against a per-pixel threshold learnt from the background frames (so the
+   edges of static objects, which flicker with camera jitter, are not
+   foreground). The connected region at the robot's base is the robot; a
+   geodesic (breadth-first) walk from the base through it gives the ordered path
+   to the farthest point, the tip.
+2. **Fine** (full resolution, ~1 % of the pixels): along the coarse path, at
+   every pixel column (or row, where the tube runs more vertically than
+   horizontally), a short profile across the tube is cut out of the frame and
+   of the background, which is rebuilt on those pixels only
+   (``mean + basis^T c``, with the basis stored pixel-major so a gather reads
+   contiguous memory). On each profile the two silhouette edges are located to
+   a fraction of a pixel by the partial-area (coverage) of the edge pixels:
+   a pixel that the tube covers by a fraction ``a`` differs from the
+   background by ``a`` times the tube's rim contrast, so an edge lies at the
+   pixel boundary minus the summed coverage of the pixels before it. The
+   midpoint of the two edges lies on the tube's axis (exactly, for a straight
+   stretch with parallel edges, whatever the profile's slant) and their
+   distance, times the slant, is the tube's width.
+3. Centres are smoothed by a least-squares cubic B-spline (outliers, e.g.
+   profiles through a specular highlight that reaches the rim, are rejected by
+   their residual and the spline refitted), and the tip is measured along the
+   tube's axis on lines parallel to it, each against its own interior contrast.
+
+Pixel coordinates follow OpenCV: (0, 0) is the centre of the top-left pixel.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .errors import FrameError
+
+try:  # compiled per-pixel loops (optional; the NumPy code below gives the same results)
+    from ._kernels import (
+        bfs_path_nb,
+        coarse_foreground_nb,
+        frame_coefficients_nb,
+        frame_shift_nb,
+        profile_edges_nb,
+        spline_eval_nb,
+        spline_robust_nb,
+        tip_along_axis_nb,
+    )
+
+    HAVE_NUMBA = True
+except ImportError:  # pragma: no cover - depends on the environment
+    HAVE_NUMBA = False
+
+#: Use the compiled kernels when numba is there (tests switch this off to compare).
+USE_NUMBA = HAVE_NUMBA
+
+__all__ = [
+    "ViewModel",
+    "ViewCenterline",
+    "prepare_view",
+    "coarse_path",
+    "profile_edges",
+    "edges_from_profiles",
+    "fit_curve",
+    "UniformSpline",
+    "extract_view",
+]
+
+_BORDER_NAMES = ("left", "top", "right", "bottom")
+
+
+# ----------------------------------------------------------------------------- model
+@dataclass(frozen=True, eq=False)
+class ViewModel:
+    """Per-camera constants of the fast method (built once per session).
+
+    Attributes
+    ----------
+    name : str
+    shape : (H, W)
+    stack : (H*W, k+1) float32
+        Mean background and eigenbackgrounds, pixel-major: row ``p`` holds
+        ``mean[p], basis[0, p], ..., basis[k-1, p]``.
+    factor : int
+        Coarse downsampling factor.
+    coarse_mean : (Hc*Wc,) float32
+    coarse_basis : (k, Hc*Wc) float32
+    coarse_gram : (k, k) float64
+        ``coarse_basis @ coarse_basis.T``.
+    coarse_basis_t : (Hc*Wc, k) float32
+        The same basis pixel-major (for gathering pixels).
+    sample_index : (M, 4) int
+        Full-resolution pixels whose mean is each of M fixed coarse pixels
+        (a regular grid) on which the eigenbackground coefficients are fitted.
+    sample_mean, sample_basis_t, sample_gram, sample_threshold, sample_prior
+        Mean, basis (M, k), its Gram matrix, the foreground threshold at
+        those coarse pixels, and the prior's diagonal (noise / eigenvalue).
+    shift_index : (N,) int or None
+        The strongest-gradient pixels of the mean background (edges of static
+        objects), on which each frame's image shift (camera jitter) is
+        measured; None when the background has too little texture.
+    shift_design : (N, 6) float64
+        Regressors there: mean, 1, x * mean, y * mean, -d mean/du, -d mean/dv.
+    shift_gram : (6, 6) float64
+    coarse_threshold : (Hc, Wc) float32
+        Foreground threshold per coarse pixel (gray levels).
+    sigma_fine : float
+        Noise of the fine background difference (gray levels).
+    base_px, axis_px : (2,) arrays
+        The robot base projected into the image, and the unit image direction
+        of the insertion axis there.
+    outer_radius_px, inner_radius_px : float
+        Tube radii in the image at the base (px).
+    peak : float
+        Brightest gray level of the mean background (all-black check).
+    """
+
+    name: str
+    shape: tuple
+    stack: np.ndarray
+    factor: int
+    coarse_mean: np.ndarray
+    coarse_basis: np.ndarray
+    coarse_gram: np.ndarray
+    coarse_basis_t: np.ndarray
+    coarse_threshold: np.ndarray
+    sample_index: np.ndarray
+    sample_mean: np.ndarray
+    sample_basis_t: np.ndarray
+    sample_gram: np.ndarray
+    sample_threshold: np.ndarray
+    sample_prior: np.ndarray
+    sigma_fine: float
+    base_px: np.ndarray
+    axis_px: np.ndarray
+    outer_radius_px: float
+    inner_radius_px: float
+    peak: float
+    shift_index: np.ndarray = None
+    shift_design: np.ndarray = None
+    shift_gram: np.ndarray = None
+
+    @property
+    def coarse_shape(self) -> tuple:
+        return (self.shape[0] // self.factor, self.shape[1] // self.factor)
+
+
+def _downsample(img: np.ndarray, factor: int) -> np.ndarray:
+    """Coarse image: each output pixel averages the central 2x2 pixels of its ``factor`` block.
+
+    (OpenCV's bilinear resize at an integer ratio; a linear operator, applied
+    alike to frames, the mean background and the eigenbackgrounds, so coarse
+    coefficients are those of the full-resolution model. ~6x cheaper than an
+    area average of the whole block.)
+    """
+    h, w = img.shape[0] // factor, img.shape[1] // factor
+    if factor == 1:
+        return img
+    return cv2.resize(img[: h * factor, : w * factor], (w, h), interpolation=cv2.INTER_LINEAR)
+
+
+def _coarse_coefficients(model: ViewModel, r: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:
+    """Least-squares eigenbackground coefficients of the coarse residual ``r = f - mean``."""
+    B = model.coarse_basis
+    rhs = (B @ r).astype(np.float64)
+    G = model.coarse_gram
+    if exclude is not None and exclude.size:
+        Bo = model.coarse_basis_t[exclude].T.astype(np.float64)
+        G = G - Bo @ Bo.T
+        rhs = rhs - Bo @ r[exclude].astype(np.float64)
+    try:
+        return np.linalg.solve(G, rhs).astype(np.float32)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(G, rhs, rcond=None)[0].astype(np.float32)
+
+
+def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm, inner_radius_mm, background_frames,
+                 factor: int = 4, threshold_sigma: float = 6.0, threshold_min_dn: float = 6.0,
+                 jitter_margin: float = 1.5, n_samples: int = 2048) -> ViewModel:
+    """Build a :class:`ViewModel` from a fitted :class:`~recon.background.EigenBackground`.
+
+    ``background_frames`` (N, H, W) set the noise levels: the coarse threshold
+    of each pixel is ``max(threshold_min_dn, threshold_sigma * sigma,
+    jitter_margin * max |residual|)`` over the background frames, the maximum
+    taken over the pixel's 3x3 neighbourhood (the residual of a static edge
+    moves with the jitter).
+    """
+    H, W = eigen.shape
+    k = eigen.k
+    stack = np.empty((H * W, k + 1), np.float32)
+    stack[:, 0] = eigen.mean
+    stack[:, 1:] = eigen.basis.T
+    mean_img = eigen.mean.reshape(H, W)
+    coarse_mean = _downsample(mean_img, factor).ravel().astype(np.float32)
+    coarse_basis = np.stack([_downsample(b.reshape(H, W), factor).ravel() for b in eigen.basis]).astype(np.float32)
+    gram = coarse_basis.astype(np.float64) @ coarse_basis.T.astype(np.float64)
+    hc, wc = H // factor, W // factor
+    # Coefficient samples: a regular grid of ~n_samples coarse pixels, and the fine pixels each averages.
+    step = max(1, int(np.sqrt(hc * wc / n_samples)))
+    gy, gx = np.mgrid[step // 2:hc:step, step // 2:wc:step]
+    gy, gx = gy.ravel(), gx.ravel()
+    scoarse = gy * wc + gx
+    lo = (factor - 1) // 2 if factor % 2 else factor // 2 - 1
+    hi = (factor - 1) // 2 if factor % 2 else factor // 2
+    sidx = np.stack([(gy * factor + a) * W + gx * factor + b for a in (lo, hi) for b in (lo, hi)], axis=1)
+    base_uv, _ = camera.project(np.asarray(base_world_mm, float)[None])
+    tip_uv, _ = camera.project(np.asarray(base_world_mm, float)[None] + 5.0 * np.asarray(axis_world, float)[None])
+    axis_px = tip_uv[0] - base_uv[0]
+    axis_px /= max(np.linalg.norm(axis_px), 1e-9)
+    mm_px = camera.mm_per_pixel_at(base_world_mm)
+    model = ViewModel(
+        name=name, shape=(H, W), stack=stack, factor=factor, coarse_mean=coarse_mean, coarse_basis=coarse_basis,
+        coarse_gram=gram, coarse_basis_t=np.ascontiguousarray(coarse_basis.T), coarse_threshold=np.zeros((hc, wc), np.float32),
+        sample_index=sidx, sample_mean=coarse_mean[scoarse], sample_basis_t=np.ascontiguousarray(coarse_basis[:, scoarse].T.astype(np.float64)),
+        sample_gram=coarse_basis[:, scoarse].astype(np.float64) @ coarse_basis[:, scoarse].T.astype(np.float64),
+        sample_threshold=np.zeros(scoarse.size, np.float32), sample_prior=np.zeros(k), sigma_fine=1.0,
+        base_px=base_uv[0], axis_px=axis_px, outer_radius_px=outer_radius_mm / mm_px,
+        inner_radius_px=inner_radius_mm / mm_px, peak=float(eigen.mean.max()),
+    )
+    # Pixel noise from differences of consecutive background frames (robust; offsets removed).
+    frames = np.asarray(background_frames)
+    if frames.ndim == 4:
+        frames = np.stack([cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames])
+    sub = np.arange(0, H * W, 61)
+    flat = frames.reshape(len(frames), -1)
+    # Differences of horizontal neighbours of the frame-to-frame difference cancel its smooth part
+    # (gain, ramps): 4 sigma^2 of pixel noise remain.
+    sub = sub[(sub % W) < W - 1]
+    dd = [(flat[i + 1, sub + 1].astype(np.float32) - flat[i, sub + 1]) - (flat[i + 1, sub].astype(np.float32) - flat[i, sub])
+          for i in range(min(len(frames) - 1, 8))]
+    sigma_pix = float(np.median([1.4826 * np.median(np.abs(d)) for d in dd])) / 2.0 if dd else 1.0
+    sigma_pix = max(sigma_pix, 0.5)
+    sigma_c = sigma_pix / 2.0  # a coarse pixel averages 2x2 pixels
+    lam = np.maximum(np.asarray(eigen.eigenvalues, float), 1e-9)
+    object.__setattr__(model, "sample_prior", sigma_c ** 2 / lam)
+    object.__setattr__(model, "sample_threshold", np.full(scoarse.size, max(threshold_min_dn, threshold_sigma * sigma_c), np.float32))
+    # Residuals of (at most 12) background frames, fitted as live frames are: the static edges' flicker.
+    pick = np.unique(np.linspace(0, len(frames) - 1, min(12, len(frames))).round().astype(int))
+    maxabs = np.zeros((hc, wc), np.float32)
+    for i in pick:
+        f = frames[i]
+        coeff = frame_coefficients(model, f)
+        res = _downsample(f.astype(np.float32), factor).ravel() - coarse_mean - coeff[1:] @ coarse_basis
+        np.maximum(maxabs, np.abs(res).reshape(hc, wc), out=maxabs)
+    thr = cv2.dilate(maxabs, np.ones((3, 3), np.uint8)) * np.float32(jitter_margin)
+    thr = np.maximum(thr, np.float32(max(threshold_min_dn, threshold_sigma * sigma_c)))
+    object.__setattr__(model, "coarse_threshold", thr.astype(np.float32))
+    object.__setattr__(model, "sample_threshold", thr.reshape(-1)[scoarse].astype(np.float32))
+    object.__setattr__(model, "sigma_fine", sigma_pix)
+    _prepare_shift(model, mean_img, sigma_pix)
+    return model
+
+
+def _prepare_shift(model: ViewModel, mean_img: np.ndarray, sigma_pix: float, n: int = 3000, border: int = 8) -> None:
+    """Choose the pixels and regressors of :func:`frame_shift` (strongest gradients of the mean background)."""
+    H, W = mean_img.shape
+    m = mean_img.astype(np.float64)
+    gx = cv2.Sobel(m, cv2.CV_64F, 1, 0, ksize=3) / 8.0
+    gy = cv2.Sobel(m, cv2.CV_64F, 0, 1, ksize=3) / 8.0
+    g2 = gx * gx + gy * gy
+    g2[:border] = g2[-border:] = 0.0
+    g2[:, :border] = g2[:, -border:] = 0.0
+    flat = g2.reshape(-1)
+    n = min(n, int(np.count_nonzero(flat > (3.0 * sigma_pix) ** 2)))
+    if n < 50:
+        return  # no texture to register on: frames are used as they are
+    idx = np.argpartition(flat, -n)[-n:]
+    y, x = np.divmod(idx, W)
+    mv = m.reshape(-1)[idx]
+    D = np.stack([mv, np.ones(n), (x / W - 0.5) * mv, (y / H - 0.5) * mv, -gx.reshape(-1)[idx], -gy.reshape(-1)[idx]], axis=1)
+    G = D.T @ D
+    # Both shift directions must be measurable (edges in more than one direction).
+    ev = np.linalg.eigvalsh(G[4:, 4:])
+    if ev[0] < 1e-3 * ev[-1] or ev[0] < 50.0 * sigma_pix ** 2:
+        return
+    object.__setattr__(model, "shift_index", idx.astype(np.int64))
+    object.__setattr__(model, "shift_design", D)
+    object.__setattr__(model, "shift_gram", G)
+
+
+def frame_shift(model: ViewModel, frame: np.ndarray, max_px: float = 3.0, iterations: int = 1) -> np.ndarray:
+    """Image shift (du, dv) px of a frame against the mean background: the camera's jitter.
+
+    Fitted at the static edges of the background (:func:`_prepare_shift`) with
+    the lighting (gain, offset, linear ramps) as nuisance terms; pixels that do
+    not fit (the robot in front of an edge) are dropped and the fit repeated.
+    Zero when the background has no usable texture or the fit is implausible.
+    """
+    if model.shift_index is None:
+        return np.zeros(2)
+    if USE_NUMBA:
+        H, W = model.shape
+        d = np.array(frame_shift_nb(frame.reshape(-1), model.stack[:, 0], W, H, model.shift_index, model.shift_design,
+                                    model.shift_gram, iterations))
+        if not np.all(np.isfinite(d)) or float(np.hypot(d[0], d[1])) > max_px:
+            return np.zeros(2)
+        return d
+    D = model.shift_design
+    f = np.take(frame.reshape(-1), model.shift_index).astype(np.float64)
+    beta = np.linalg.solve(model.shift_gram, D.T @ f)
+    r = f - D @ beta
+    s = 1.4826 * float(np.median(np.abs(r))) + 1e-6
+    bad = np.abs(r) > 4.0 * s
+    if bad.any():
+        Db = D[bad]
+        beta = np.linalg.solve(model.shift_gram - Db.T @ Db, D.T @ f - Db.T @ f[bad])
+    d = beta[4:] / beta[0]  # the shifted mean is scaled by the gain too
+    for _ in range(iterations):
+        # Gauss-Newton: regressors re-sampled at the shifted positions, for the remaining shift.
+        if not np.all(np.isfinite(d)) or float(np.hypot(d[0], d[1])) > max_px:
+            break
+        D2 = _shifted_design(model, d)
+        keep = ~bad
+        G2 = D2[keep].T @ D2[keep]
+        beta = np.linalg.solve(G2, D2[keep].T @ f[keep])
+        d = d + beta[4:] / beta[0]
+    if not np.all(np.isfinite(d)) or float(np.hypot(d[0], d[1])) > max_px:
+        return np.zeros(2)
+    return d
+
+
+def _shifted_design(model: ViewModel, d: np.ndarray) -> np.ndarray:
+    """:attr:`ViewModel.shift_design` with the mean and its gradients taken at ``p - d`` (bilinear)."""
+    H, W = model.shape
+    idx = model.shift_index
+    y, x = np.divmod(idx, W)
+    u = np.clip(x - d[0], 0, W - 2.001)
+    v = np.clip(y - d[1], 0, H - 2.001)
+    u0 = np.floor(u).astype(np.int64)
+    v0 = np.floor(v).astype(np.int64)
+    fu, fv = u - u0, v - v0
+    m = model.stack[:, 0]
+    base = v0 * W + u0
+
+    def at(k):
+        return m[base + k]
+
+    m00, m01, m10, m11 = at(0), at(1), at(W), at(W + 1)
+    mv = (1 - fv) * ((1 - fu) * m00 + fu * m01) + fv * ((1 - fu) * m10 + fu * m11)
+    gx = (1 - fv) * (m01 - m00) + fv * (m11 - m10)
+    gy = (1 - fu) * (m10 - m00) + fu * (m11 - m01)
+    D = model.shift_design.copy()
+    D[:, 0] = mv
+    D[:, 2] = (x / W - 0.5) * mv
+    D[:, 3] = (y / H - 0.5) * mv
+    D[:, 4] = -gx
+    D[:, 5] = -gy
+    return D
+
+
+# ----------------------------------------------------------------------------- coarse stage
+@dataclass(frozen=True, eq=False)
+class CoarseResult:
+    """Output of :func:`coarse_path`.
+
+    Attributes
+    ----------
+    coefficients : (k+1,) float32
+        ``[1, c_1..c_k]``: multiplies the rows of ``ViewModel.stack``.
+    path_px : (n, 2) float
+        Ordered path base -> tip in full-resolution pixel coordinates.
+    bbox : (x0, y0, x1, y1)
+        The robot region's bounding box (full-resolution pixels).
+    n_pixels : int
+        Coarse pixels of the robot region.
+    coarse_bbox : (x0, y0, x1, y1)
+        The same box in coarse pixels (the next frame's ROI).
+    """
+
+    coefficients: np.ndarray
+    path_px: np.ndarray
+    bbox: tuple
+    n_pixels: int
+    coarse_bbox: tuple
+
+
+_NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
+
+
+def _geodesic_path(mask: np.ndarray, start: tuple) -> np.ndarray:
+    """Shortest 8-connected path inside ``mask`` from ``start`` (y, x) to the farthest pixel; (n, 2) (y, x).
+
+    Breadth-first (hop count); among the pixels at the largest hop count the
+    one farthest from ``start`` is the end. Plain Python on lists: the graphs
+    are a few hundred pixels, for which scipy's sparse machinery costs more.
+    """
+    ys, xs = np.nonzero(mask)
+    n = ys.size
+    h, w = mask.shape
+    index = np.full((h + 2, w + 2), -1, np.int32)
+    index[ys + 1, xs + 1] = np.arange(n, dtype=np.int32)
+    nb = np.stack([index[ys + 1 + dy, xs + 1 + dx] for dy, dx in _NEIGHBOURS], axis=1).tolist()
+    s = int(index[start[0] + 1, start[1] + 1])
+    pred = [-2] * n
+    pred[s] = -1
+    frontier = [s]
+    last = frontier
+    while frontier:
+        nxt = []
+        for node in frontier:
+            for m in nb[node]:
+                if m >= 0 and pred[m] == -2:
+                    pred[m] = node
+                    nxt.append(m)
+        if nxt:
+            last = nxt
+        frontier = nxt
+    la = np.asarray(last)
+    node = int(la[np.argmax((ys[la] - start[0]) ** 2 + (xs[la] - start[1]) ** 2)])
+    path = [node]
+    while pred[node] >= 0:
+        node = pred[node]
+        path.append(node)
+    path.reverse()
+    p = np.asarray(path)
+    return np.stack([ys[p], xs[p]], axis=1)
+
+
+def frame_coefficients(model: ViewModel, frame: np.ndarray) -> np.ndarray:
+    """Eigenbackground coefficients ``[1, c_1..c_k]`` of a frame, fitted on the fixed coarse samples.
+
+    Least squares on M (~2000) coarse pixels, regularized by the
+    eigenbackgrounds' own variances (a Gaussian prior ``c_j ~ N(0, lambda_j)``
+    against the pixel noise, so that directions the background frames hardly
+    vary along, e.g. noise picked up from few frames, are not blown up by
+    fitting them on a subset), then once more without the pixels the first
+    fit calls foreground (the robot must not pull the background).
+
+    Raises
+    ------
+    FrameError
+        An all-black frame.
+    """
+    if USE_NUMBA:
+        c, fmax = frame_coefficients_nb(frame.reshape(-1), model.sample_index, model.sample_mean, model.sample_basis_t,
+                                        model.sample_gram + np.diag(model.sample_prior), model.sample_threshold)
+        if fmax <= 0.01 * model.peak:
+            raise FrameError("all-black frame", model.name)
+        return np.concatenate([[1.0], c]).astype(np.float32)
+    fs = np.take(frame.reshape(-1), model.sample_index).sum(axis=1, dtype=np.float64) * 0.25
+    if float(fs.max()) <= 0.01 * model.peak:
+        raise FrameError("all-black frame", model.name)
+    r = fs - model.sample_mean
+    Bt = model.sample_basis_t
+    rhs = Bt.T @ r
+    G = model.sample_gram + np.diag(model.sample_prior)
+    c = np.linalg.solve(G, rhs)
+    out = np.abs(r - Bt @ c) > 0.5 * model.sample_threshold
+    if out.any():
+        Bo = Bt[out]
+        try:
+            c = np.linalg.solve(G - Bo.T @ Bo, rhs - Bo.T @ r[out])
+        except np.linalg.LinAlgError:
+            pass
+    return np.concatenate([[1.0], c]).astype(np.float32)
+
+
+def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px: int = 1,
+                base_search_px: float = 24.0, min_region: int = 8) -> CoarseResult:
+    """Coarse stage: background coefficients, robot region at the base, ordered path.
+
+    ``roi`` = ``(x0, y0, x1, y1)`` in coarse pixels restricts the search for
+    the robot (e.g. around the previous frame's); when the robot's region
+    reaches the ROI's edge the whole frame is searched instead.
+
+    Raises
+    ------
+    FrameError
+        All-black frame, no foreground, nothing at the base, or the robot's
+        region touching the image border (partly out of view).
+    """
+    f = model.factor
+    hc, wc = model.coarse_shape
+    coeff = frame_coefficients(model, frame)
+    bx, by = (model.base_px + 0.5) / f - 0.5
+    rad = max(2, int(np.ceil(base_search_px / f)))
+    bwin = (max(0, int(bx) - rad), max(0, int(by) - rad), min(wc, int(bx) + rad + 2), min(hc, int(by) + rad + 2))
+    if bwin[0] >= bwin[2] or bwin[1] >= bwin[3]:
+        raise FrameError("the robot's base projects outside the image (check the calibration)", model.name)
+    if roi is None:
+        rx0, ry0, rx1, ry1 = 0, 0, wc, hc
+    else:
+        rx0, ry0 = max(0, min(int(roi[0]), bwin[0])), max(0, min(int(roi[1]), bwin[1]))
+        rx1, ry1 = min(wc, max(int(roi[2]), bwin[2])), min(hc, max(int(roi[3]), bwin[3]))
+    hr, wr = ry1 - ry0, rx1 - rx0
+    k = model.coarse_basis.shape[0]
+    if USE_NUMBA:
+        lo = (f - 1) // 2 if f % 2 else f // 2 - 1
+        hi = (f - 1) // 2 if f % 2 else f // 2
+        mask, peak = coarse_foreground_nb(frame, f, lo, hi, rx0, ry0, rx1, ry1, model.coarse_mean.reshape(hc, wc),
+                                          model.coarse_basis.reshape(k, hc, wc), model.coarse_threshold, coeff.astype(np.float64))
+        found = peak > 0.0
+    else:
+        fc = _downsample(frame[ry0 * f: ry1 * f, rx0 * f: rx1 * f], f)
+        basis = model.coarse_basis.reshape(k, hc, wc)[:, ry0:ry1, rx0:rx1].reshape(k, -1)
+        res = fc.astype(np.float32).reshape(-1)
+        res -= model.coarse_mean.reshape(hc, wc)[ry0:ry1, rx0:rx1].reshape(-1)
+        res -= coeff[1:] @ basis
+        thr = model.coarse_threshold[ry0:ry1, rx0:rx1].reshape(-1)
+        fg = np.abs(res) > thr
+        found = bool(fg.any())
+        peak = float(np.max(np.abs(res) - thr)) if res.size else 0.0
+        mask = fg.reshape(hr, wr).view(np.uint8).copy()
+    if not found:
+        if roi is not None:
+            return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)
+        raise FrameError(f"no silhouette (no coarse pixel above its threshold, closest by {-peak:.1f} gray levels)", model.name)
+    # The robot's region: flood-filled from the foreground pixel nearest to the projected base.
+    bx, by = bx - rx0, by - ry0
+    x0, y0, x1, y1 = bwin[0] - rx0, bwin[1] - ry0, bwin[2] - rx0, bwin[3] - ry0
+
+    wy, wx = np.nonzero(mask[y0:y1, x0:x1])
+    area, rect = 0, None
+    for k in np.argsort((wx + x0 - bx) ** 2 + (wy + y0 - by) ** 2)[:8]:
+        px, py = int(wx[k] + x0), int(wy[k] + y0)
+        if mask[py, px] != 1:
+            continue  # already part of a filled (too small) region
+        a, _, _, rc = cv2.floodFill(mask, None, (px, py), 2, 0, 0, 8)
+        if a > area:
+            area, rect = a, rc
+        if a >= min_region:
+            break
+    if area < min_region:
+        if roi is not None:
+            return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)
+        n_lab, _, stats, _ = cv2.connectedComponentsWithStats((mask > 0).view(np.uint8), connectivity=8)
+        biggest = int(stats[1:, cv2.CC_STAT_AREA].max()) if n_lab > 1 else 0
+        raise FrameError(f"no robot at its base (largest foreground region, {biggest * f * f} px, is elsewhere)", model.name)
+    sx, sy, sw, sh = (int(v) for v in rect)
+    if roi is not None and (sx == 0 and rx0 > 0 or sy == 0 and ry0 > 0 or sx + sw == wr and rx1 < wc or sy + sh == hr and ry1 < hc):
+        return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)  # outgrew the ROI
+    sx, sy = sx + rx0, sy + ry0
+    touched = [nm for nm, hit in zip(_BORDER_NAMES, (sx < border_margin_px, sy < border_margin_px,
+                                                      sx + sw > wc - border_margin_px, sy + sh > hc - border_margin_px)) if hit]
+    if touched:
+        raise FrameError(f"robot partly out of view (its silhouette reaches the {' and '.join(touched)} image border)", model.name)
+    # The path is traced on the region pooled 2x2 (4x fewer graph nodes; the fine stage re-centres).
+    x0p, y0p = sx - (sx & 1), sy - (sy & 1)
+    x1p, y1p = min(wc, sx + sw + ((sx + sw) & 1)), min(hc, sy + sh + ((sy + sh) & 1))
+    region = np.zeros((y1p - y0p, x1p - x0p), np.uint8)
+    region[sy - y0p: sy - y0p + sh, sx - x0p: sx - x0p + sw] = mask[sy - ry0: sy - ry0 + sh, sx - rx0: sx - rx0 + sw] == 2
+    ph, pw = region.shape[0] // 2, region.shape[1] // 2
+    if ph and pw:
+        rr = region[: 2 * ph, : 2 * pw]
+        pooled = rr[0::2, 0::2] | rr[1::2, 0::2] | rr[0::2, 1::2] | rr[1::2, 1::2]
+    else:
+        pooled = region
+    if pooled.size == 0 or not pooled.any():
+        pooled, g, x0p, y0p = region, 1, sx, sy  # degenerate (tiny) region: no pooling
+        pooled = (mask[sy - ry0:sy - ry0 + sh, sx - rx0:sx - rx0 + sw] == 2).view(np.uint8)
+    else:
+        g = 2
+    ry, rx = np.nonzero(pooled)
+    bx, by = bx + rx0, by + ry0
+    k0 = int(np.argmin(((rx + 0.5) * g + x0p - 0.5 - bx) ** 2 + ((ry + 0.5) * g + y0p - 0.5 - by) ** 2))
+    if USE_NUMBA:
+        path = bfs_path_nb(np.ascontiguousarray(pooled, dtype=np.uint8), int(ry[k0]), int(rx[k0]))
+    else:
+        path = _geodesic_path(pooled.astype(bool), (int(ry[k0]), int(rx[k0])))
+    path_px = ((path[:, ::-1].astype(np.float64) + 0.5) * g + [x0p, y0p]) * f - 0.5
+    bbox = (sx * f, sy * f, (sx + sw) * f, (sy + sh) * f)
+    return CoarseResult(coeff, path_px, bbox, area, (sx, sy, sx + sw, sy + sh))
+
+
+# ----------------------------------------------------------------------------- fine stage
+def _smooth_path(path: np.ndarray, window: int) -> np.ndarray:
+    if len(path) < 3 or window < 2:
+        return path
+    k = np.ones(window) / window
+    pad = window // 2
+    out = np.empty_like(path)
+    for j in range(2):
+        p = np.pad(path[:, j], pad, mode="edge")
+        out[:, j] = np.convolve(p, k, mode="same")[pad: pad + len(path)]
+    return out
+
+
+def _resample(path: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    if s[-1] <= 0:
+        return path[:1], s[:1]
+    t = np.arange(0.0, s[-1] + 1e-9, step)
+    return np.stack([np.interp(t, s, path[:, 0]), np.interp(t, s, path[:, 1])], axis=1), t
+
+
+def profile_edges(d: np.ndarray, threshold: float):
+    """Sub-pixel edges of the tube on profiles ``d`` (n, L): signed differences from the background.
+
+    Returns ``(e1, e2, ok)``: edge positions in sample units (0 = first
+    sample's centre) and a validity mask. Each edge is the boundary between
+    the pixels outside and those fully inside minus the coverage of the
+    partial pixels, with the coverage of a pixel = its difference over the
+    rim contrast (largest same-signed difference among the first three
+    pixels inside).
+    """
+    n, L = d.shape
+    a = np.abs(d) > threshold
+    has = a.any(axis=1)
+    i1 = np.argmax(a, axis=1)
+    i2 = L - 1 - np.argmax(a[:, ::-1], axis=1)
+    ok = has & (i1 >= 2) & (i2 <= L - 3) & (i2 - i1 >= 2)
+    i1 = np.where(ok, i1, 2)
+    i2 = np.where(ok, i2, L - 3)
+    rows = np.arange(n)[:, None]
+    # Rim contrast: the same-signed extreme of the first 3 pixels from each edge inward.
+    in1 = d[rows, i1[:, None] + np.arange(3)]
+    in2 = d[rows, i2[:, None] - np.arange(3)]
+    s1 = np.sign(d[np.arange(n), i1])
+    s2 = np.sign(d[np.arange(n), i2])
+    rim1 = s1 * np.max(in1 * s1[:, None], axis=1)
+    rim2 = s2 * np.max(in2 * s2[:, None], axis=1)
+    ok &= (np.abs(rim1) > threshold) & (np.abs(rim2) > threshold)
+    rim1 = np.where(ok, rim1, 1.0)
+    rim2 = np.where(ok, rim2, 1.0)
+    # Partial pixels: i-1, i, i+1 on each side.
+    w1 = np.clip(d[rows, i1[:, None] + np.arange(-1, 2)] / rim1[:, None], 0.0, 1.0).sum(axis=1)
+    w2 = np.clip(d[rows, i2[:, None] - np.arange(-1, 2)] / rim2[:, None], 0.0, 1.0).sum(axis=1)
+    e1 = i1 + 1.5 - w1
+    e2 = i2 - 1.5 + w2
+    return e1, e2, ok
+
+
+@dataclass(eq=False)
+class Profiles:
+    """Profiles across the tube: centres, chords and geometry (full-resolution px)."""
+
+    centers: np.ndarray  # (n, 2) sub-pixel centres
+    chord: np.ndarray  # (n,) edge distance along the profile axis (px)
+    axis: np.ndarray  # (n,) 0: profile along v (column), 1: along u (row)
+    s: np.ndarray  # (n,) arc length of the seed along the coarse path (px)
+    ok: np.ndarray  # (n,) bool
+
+
+def _gather_profiles(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, seeds: np.ndarray, tangents: np.ndarray, half: int):
+    H, W = model.shape
+    axis = np.abs(tangents[:, 1]) > np.abs(tangents[:, 0])  # True: tube runs vertically -> row profile
+    cu = np.rint(seeds[:, 0]).astype(np.int64)
+    cv = np.rint(seeds[:, 1]).astype(np.int64)
+    # Windows are kept inside the image; a profile whose window had to move is invalid.
+    cuc = np.clip(cu, half, W - 1 - half)
+    cvc = np.clip(cv, half, H - 1 - half)
+    full = (cuc == cu) & (cvc == cv)
+    stride = np.where(axis, 1, W)
+    idx = (cvc * W + cuc)[:, None] + stride[:, None] * np.arange(-half, half + 1)
+    d = np.take(frame.reshape(-1), idx).astype(np.float32)
+    d -= (np.take(model.stack, idx.reshape(-1), axis=0) @ coeff).reshape(idx.shape)
+    return d, axis.astype(np.int8), cuc, cvc, full
+
+
+def edges_from_profiles(model: ViewModel, frame, coeff, seeds, tangents, s, half, threshold) -> Profiles:
+    """Cut profiles at ``seeds`` across ``tangents`` and locate the edges on them."""
+    if USE_NUMBA:
+        H, W = model.shape
+        axis = (np.abs(tangents[:, 1]) > np.abs(tangents[:, 0])).astype(np.int8)
+        cu0 = np.rint(seeds[:, 0]).astype(np.int64)
+        cv0 = np.rint(seeds[:, 1]).astype(np.int64)
+        cu = np.clip(cu0, half, W - 1 - half)
+        cv = np.clip(cv0, half, H - 1 - half)
+        e1, e2, ok = profile_edges_nb(frame, model.stack, coeff, cu, cv, axis, half, float(threshold))
+        ok &= (cu == cu0) & (cv == cv0)
+    else:
+        d, axis, cu, cv, full = _gather_profiles(model, frame, coeff, seeds, tangents, half)
+        e1, e2, ok = profile_edges(d, threshold)
+        ok &= full
+    mid = (e1 + e2) / 2.0 - half
+    centers = np.stack([np.where(axis == 1, cu + mid, cu), np.where(axis == 1, cv, cv + mid)], axis=1).astype(np.float64)
+    return Profiles(centers=centers, chord=(e2 - e1), axis=axis, s=s, ok=ok)
+
+
+# ----------------------------------------------------------------------------- curve fit
+class UniformSpline:
+    """Cubic B-spline with uniform knots: ``y(s) = sum_j coef[j] B((s - s0) / h - j + 3)``.
+
+    Fitted by :func:`fit_curve` (penalized least squares, P-spline). Outside
+    ``[s0, s1]`` the end polynomials are extrapolated.
+    """
+
+    def __init__(self, s0: float, h: float, n_int: int, coef: np.ndarray, deriv: int = 0):
+        self.s0, self.h, self.n_int, self.coef, self.deriv = float(s0), float(h), int(n_int), coef, deriv
+
+    @staticmethod
+    def basis(s: np.ndarray, s0: float, h: float, n_int: int, deriv: int = 0):
+        x = (np.asarray(s, float) - s0) / h
+        i = np.clip(np.floor(x), 0, n_int - 1).astype(np.int64)
+        u = x - i
+        b = np.empty(u.shape + (4,))
+        u2 = u * u
+        if deriv == 0:
+            u3 = u2 * u
+            v = 1.0 - u
+            b[..., 0] = v * v * v / 6.0
+            b[..., 1] = (3.0 * u3 - 6.0 * u2 + 4.0) / 6.0
+            b[..., 2] = (-3.0 * u3 + 3.0 * u2 + 3.0 * u + 1.0) / 6.0
+            b[..., 3] = u3 / 6.0
+        else:
+            v = 1.0 - u
+            k = 1.0 / (2.0 * h)
+            b[..., 0] = -v * v * k
+            b[..., 1] = (3.0 * u2 - 4.0 * u) * k
+            b[..., 2] = (-3.0 * u2 + 2.0 * u + 1.0) * k
+            b[..., 3] = u2 * k
+        return i, b
+
+    def __call__(self, s):
+        scalar = np.ndim(s) == 0
+        i, b = self.basis(np.atleast_1d(s), self.s0, self.h, self.n_int, self.deriv)
+        c = self.coef
+        out = b[:, 0:1] * c[i] + b[:, 1:2] * c[i + 1] + b[:, 2:3] * c[i + 2] + b[:, 3:4] * c[i + 3]
+        return out[0] if scalar else out
+
+    def derivative(self) -> "UniformSpline":
+        if self.deriv:
+            raise NotImplementedError("only the first derivative is implemented")
+        return UniformSpline(self.s0, self.h, self.n_int, self.coef, deriv=1)
+
+
+def _design(s: np.ndarray, s0: float, h: float, n_int: int, deriv: int = 0) -> np.ndarray:
+    i, b = UniformSpline.basis(s, s0, h, n_int, deriv)
+    A = np.zeros((s.size, n_int + 3))
+    A[np.arange(s.size)[:, None], i[:, None] + np.arange(4)] = b
+    return A
+
+
+def fit_curve(s: np.ndarray, y: np.ndarray, spacing: float, w=None, smoothing: float = 1e-4, design: bool = False):
+    """Penalized least-squares cubic spline of ``y`` (n, d) over ``s`` with knots about ``spacing`` apart.
+
+    A small second-difference penalty on the coefficients (relative weight
+    ``smoothing``) keeps the fit well posed across gaps in the data. With
+    ``design=True`` also returns the (n, m) design matrix, so that the fit at
+    the data is ``A @ spline.coef``.
+    """
+    s = np.asarray(s, float)
+    y = np.asarray(y, float)
+    s0, s1 = float(s.min()), float(s.max())
+    n_int = max(1, int(np.ceil((s1 - s0) / spacing - 1e-9)))
+    h = max((s1 - s0) / n_int, 1e-9)
+    m = n_int + 3
+    A = _design(s, s0, h, n_int)
+    Aw = A if w is None else A * np.asarray(w, float)[:, None]
+    AtA = Aw.T @ A
+    Aty = Aw.T @ y
+    lam = smoothing * np.trace(AtA) / m
+    coef = np.linalg.solve(AtA + lam * _penalty(m), Aty)
+    spl = UniformSpline(s0, h, n_int, coef)
+    return (spl, A) if design else spl
+
+
+_PENALTIES: dict = {}
+
+
+def _penalty(m: int) -> np.ndarray:
+    P = _PENALTIES.get(m)
+    if P is None:
+        D = np.diff(np.eye(m), 2, axis=0)
+        P = _PENALTIES[m] = D.T @ D
+    return P
+
+
+# ----------------------------------------------------------------------------- view result
+@dataclass(frozen=True, eq=False)
+class ViewCenterline:
+    """Sub-pixel centerline of one view.
+
+    Attributes
+    ----------
+    name : str
+    curve : UniformSpline
+        Centre (u, v) px as a function of the coarse-path arc length ``s`` (px).
+    s_range : (s0, s1)
+        Where the curve is supported by profiles.
+    points_px : (n, 2)
+        Accepted profile centres, base to tip (px).
+    s : (n,)
+        Their curve parameter.
+    width_px : (n,)
+        Tube width at each centre (px).
+    end_px : (2,)
+        Sub-pixel end of the silhouette along the tube's axis (px).
+    end_s : float
+        Curve parameter of the last accepted centre (``end_px`` lies
+        beyond it along the tangent).
+    tangent_end : (2,)
+        Unit image tangent at the end.
+    n_profiles, n_rejected : int
+    coarse : CoarseResult
+    shift_px : (2,) array
+        The frame's image shift against the background (camera jitter,
+        :func:`frame_shift`; zeros when not measured). Positions above are as
+        measured; subtract it for the calibrated (unjittered) camera.
+    """
+
+    name: str
+    curve: UniformSpline
+    s_range: tuple
+    points_px: np.ndarray
+    s: np.ndarray
+    width_px: np.ndarray
+    end_px: np.ndarray
+    end_s: float
+    tangent_end: np.ndarray
+    n_profiles: int
+    n_rejected: int
+    coarse: CoarseResult
+    shift_px: np.ndarray = None
+
+
+def _bilinear_diff(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Background difference at sub-pixel points (m, 2) by bilinear interpolation; NaN outside."""
+    H, W = model.shape
+    u, v = pts[:, 0], pts[:, 1]
+    inside = (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
+    u = np.clip(u, 0, W - 1.001)
+    v = np.clip(v, 0, H - 1.001)
+    u0 = np.floor(u).astype(np.int64)
+    v0 = np.floor(v).astype(np.int64)
+    fu = (u - u0).astype(np.float32)
+    fv = (v - v0).astype(np.float32)
+    out = np.zeros(len(pts), np.float32)
+    fr = frame.reshape(-1)
+    for du, dv, wt in ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv)):
+        idx = (v0 + dv) * W + (u0 + du)
+        out += wt * (fr[idx].astype(np.float32) - model.stack[idx] @ coeff)
+    out[~inside] = np.nan
+    return out
+
+
+def _tip_along_axis(model, frame, coeff, p_end, t_end, radius_px, threshold, back_px=8.0, ahead_px=20.0, step=0.5):
+    """Silhouette end along the axis beyond ``p_end`` (px), from lines parallel to the axis.
+
+    On each line the tube's difference is roughly constant (a cylinder's
+    shading varies across it, not along it), so the end is located with the
+    same coverage rule as the side edges, against that line's own interior
+    contrast. The result is the median over the lines (NaN if none works).
+    """
+    if USE_NUMBA:
+        return float(tip_along_axis_nb(frame, model.stack, coeff, np.asarray(p_end, float), np.asarray(t_end, float),
+                                       float(radius_px), float(threshold), float(back_px), float(ahead_px), float(step)))
+    n = np.array([-t_end[1], t_end[0]])
+    offsets = np.array([-0.45, -0.2, 0.0, 0.2, 0.45]) * radius_px
+    ts = np.arange(-back_px, ahead_px + 1e-9, step)
+    pts = p_end[None, None, :] + ts[None, :, None] * t_end[None, None, :] + offsets[:, None, None] * n[None, None, :]
+    d = _bilinear_diff(model, frame, coeff, pts.reshape(-1, 2)).reshape(len(offsets), len(ts))
+    n_in = int(round(2.0 / step))  # ~2 px inside the end: taken as fully covered
+    L, T = d.shape
+    ok = np.isfinite(d).all(axis=1)
+    d = np.where(np.isfinite(d), d, 0.0)
+    a = np.abs(d) > threshold
+    last = T - 1 - np.argmax(a[:, ::-1], axis=1)
+    j0 = last - n_in
+    ok &= a.any(axis=1) & (j0 >= 2) & (last <= T - 4)
+    j0 = np.where(ok, j0, 2)
+    rows = np.arange(L)[:, None]
+    ok &= np.cumsum(a, axis=1)[np.arange(L), j0] > 0.7 * (j0 + 1)
+    sgn = np.sign(d[np.arange(L), np.where(ok, last, 0)])
+    inside = d[rows, j0[:, None] - 2 + np.arange(n_in + 3)] * sgn[:, None]
+    ref = np.max(inside, axis=1)
+    ok &= ref > threshold
+    if not ok.any():
+        return np.nan
+    cov = np.clip(d[rows, np.minimum(j0[:, None] + 1 + np.arange(n_in + 4), T - 1)] * (sgn / np.where(ok, ref, 1.0))[:, None], 0.0, 1.0)
+    ends = ts[j0] + 0.5 * step + step * cov.sum(axis=1)
+    return float(np.median(ends[ok]))
+
+
+class _Lap:
+    """Accumulates wall time (ms) per stage into a dict (or does nothing)."""
+
+    def __init__(self, timings):
+        self.timings = timings
+        self.t = time.perf_counter()
+
+    def __call__(self, stage):
+        if self.timings is not None:
+            now = time.perf_counter()
+            self.timings[stage] = self.timings.get(stage, 0.0) + 1e3 * (now - self.t)
+            self.t = now
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / max(float(np.hypot(v[0], v[1])), 1e-12)
+
+
+def _unit_rows(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.hypot(v[:, 0], v[:, 1]), 1e-12)[:, None]
+
+
+def _tangents(p: np.ndarray) -> np.ndarray:
+    return _unit_rows(np.gradient(p, axis=0))
+
+
+def _slant(spl, s, axis) -> np.ndarray:
+    """|cos| between a profile's axis and the tube's normal: chord -> width."""
+    d = _unit_rows(spl.derivative()(s))
+    return np.where(axis == 1, np.abs(d[:, 1]), np.abs(d[:, 0]))
+
+
+def _reparameterize(prof, seeds, tang):
+    """Curve parameter of each centre: its seed's plus the centre's offset along the path, sorted.
+
+    (A profile's centre can lie a few px along the tube from its seed, e.g. at 45 degrees.)
+    """
+    s = prof.s + np.einsum("ij,ij->i", prof.centers - seeds, tang)
+    o = np.argsort(s, kind="stable")
+    prof.chord, prof.axis = prof.chord[o], prof.axis[o]
+    return s[o], prof.centers[o], prof.ok[o]
+
+
+class _Fitter:
+    """Penalized cubic spline fits of several data sets over the same abscissae ``s``."""
+
+    def __init__(self, s: np.ndarray, spacing: float, smoothing: float = 1e-4):
+        s0, s1 = float(s[0]), float(s[-1])
+        self.n_int = max(1, int(np.ceil((s1 - s0) / spacing - 1e-9)))
+        self.s0, self.h = s0, max((s1 - s0) / self.n_int, 1e-9)
+        self.P = _penalty(self.n_int + 3)
+        self.smoothing = smoothing
+        if USE_NUMBA:
+            self.idx, self.b = UniformSpline.basis(s, self.s0, self.h, self.n_int)
+            _, self.db = UniformSpline.basis(s, self.s0, self.h, self.n_int, 1)
+        else:
+            self.A = _design(s, self.s0, self.h, self.n_int)
+            self.dA = _design(s, self.s0, self.h, self.n_int, 1)
+
+    def fit(self, y: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        A = self.A[ok]
+        AtA = A.T @ A
+        lam = self.smoothing * np.trace(AtA) / AtA.shape[0]
+        return np.linalg.solve(AtA + lam * self.P, A.T @ y[ok])
+
+    def robust(self, y, ok, min_px, n_sigma):
+        """Fit, reject points off the fit by more than max(n_sigma MAD, min_px), refit."""
+        if USE_NUMBA:
+            return spline_robust_nb(self.idx, self.b, y, ok, self.P, self.smoothing, float(min_px), float(n_sigma))
+        coef = self.fit(y, ok)
+        r = y - self.A @ coef
+        res = np.hypot(r[:, 0], r[:, 1])
+        mad = 1.4826 * float(np.median(res[ok])) + 1e-3
+        new_ok = ok & (res < max(n_sigma * mad, min_px))
+        if new_ok.sum() != ok.sum() and new_ok.sum() >= 4:
+            coef = self.fit(y, new_ok)
+        return coef, new_ok
+
+    def values(self, coef) -> np.ndarray:
+        return spline_eval_nb(self.idx, self.b, coef) if USE_NUMBA else self.A @ coef
+
+    def derivatives(self, coef) -> np.ndarray:
+        return spline_eval_nb(self.idx, self.db, coef) if USE_NUMBA else self.dA @ coef
+
+    def spline(self, coef) -> UniformSpline:
+        return UniformSpline(self.s0, self.h, self.n_int, coef)
+
+
+def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings: dict | None = None) -> ViewCenterline:
+    """Coarse path, fine profiles, spline, tip: the sub-pixel centerline of one view.
+
+    ``params`` is a :class:`recon.fast.FastParams`; ``roi`` (coarse pixels)
+    narrows the search for the robot (see :func:`coarse_path`). Stage times (ms) are
+    added to ``timings`` when given (``coarse``, ``profiles``, ``fit``, ``tip``).
+
+    Raises
+    ------
+    FrameError
+        From :func:`coarse_path`, or too few valid profiles.
+    """
+    lap = _Lap(timings)
+    frame = np.asarray(frame)
+    if frame.ndim == 3:
+        frame = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
+    if frame.shape != model.shape:
+        raise FrameError(f"frame is {frame.shape[1]}x{frame.shape[0]} but the background model is {model.shape[1]}x{model.shape[0]}", model.name)
+    if frame.dtype != np.uint8:
+        frame = np.clip(frame, 0, 255).astype(np.uint8)
+    coarse = coarse_path(model, frame, roi, base_search_px=params.base_search_px)
+    lap("coarse")
+    f = model.factor
+    if len(coarse.path_px) < 3:
+        raise FrameError(f"robot too short in the image (~{len(coarse.path_px) * 2 * f} px)", model.name)
+    coeff = coarse.coefficients
+    rmax = model.outer_radius_px * params.max_width_fraction
+    thr = max(params.edge_threshold_sigma * model.sigma_fine, params.edge_min_dn)
+    wmin = 2.0 * model.inner_radius_px * params.min_width_fraction
+    wmax = 2.0 * rmax
+    # Profiles along the coarse path, wide enough for its error (about a pooled cell).
+    seeds, s = _resample(_smooth_path(coarse.path_px, 3), params.profile_step_px)
+    tang = _tangents(seeds)
+    half = int(np.ceil(rmax * 1.45 + 1.5 * f + 2))
+    prof = edges_from_profiles(model, frame, coeff, seeds, tang, s, half, thr)
+    lap("profiles")
+    s, c, ok = _reparameterize(prof, seeds, tang)
+    ok &= (prof.chord > wmin) & (prof.chord < 1.45 * wmax)
+    if ok.sum() < 8:
+        raise FrameError(f"no tube edges found along the silhouette ({int(ok.sum())} of {len(ok)} profiles)", model.name)
+    # One knot layout over all profiles: the design matrices are built once and every fit is a small solve.
+    fitter = _Fitter(s, params.spline_knot_px)
+    coef, ok = fitter.robust(c, ok, 4.0 * params.outlier_min_px, params.outlier_sigma)
+    # Width across the tube: the chord times the slant of the profile to the tube.
+    d = _unit_rows(fitter.derivatives(coef))
+    width = prof.chord * np.where(prof.axis == 1, np.abs(d[:, 1]), np.abs(d[:, 0]))
+    ok &= (width > wmin) & (width < wmax)
+    good = np.flatnonzero(ok)
+    if good.size < 8:
+        raise FrameError(f"too few valid tube profiles ({good.size} of {len(ok)})", model.name)
+    lap("fit")
+    # Tip, along the axis from the last accepted centre.
+    sb = float(s[good[-1]])
+    p_end = fitter.values(coef)[good[-1]]
+    t_end = d[good[-1]]
+    r_end = 0.5 * float(np.median(width[good[-min(6, good.size):]]))
+    end_t = _tip_along_axis(model, frame, coeff, p_end, t_end, r_end, thr)
+    if not np.isfinite(end_t):
+        end_t = 0.0
+    end_px = p_end + end_t * t_end
+    lap("tip")
+    # Profiles within about a radius of the silhouette's end are cut by the end cap.
+    ok &= s <= sb + end_t - 1.2 * r_end - 1.0
+    if ok.sum() < 8:
+        raise FrameError(f"too few valid tube profiles ({int(ok.sum())} of {len(ok)})", model.name)
+    coef, ok = fitter.robust(c, ok, params.outlier_min_px, params.outlier_sigma)
+    good = np.flatnonzero(ok)
+    if good.size < 8:
+        raise FrameError(f"too few valid tube profiles ({good.size})", model.name)
+    spl = fitter.spline(coef)
+    s_end = float(s[good[-1]])
+    p_end = spl(s_end)
+    t_end = _unit(spl.derivative()(s_end))
+    end_px = p_end + float(np.dot(end_px - p_end, t_end)) * t_end
+    lap("fit")
+    # Outside border check at full resolution: the tip must not be at the border.
+    H, W = model.shape
+    if not (1.0 <= end_px[0] <= W - 2.0 and 1.0 <= end_px[1] <= H - 2.0):
+        raise FrameError("robot partly out of view (its tip is at the image border)", model.name)
+    return ViewCenterline(
+        name=model.name, curve=spl, s_range=(float(s[good[0]]), s_end), points_px=c[good], s=s[good],
+        width_px=width[good], end_px=end_px, end_s=s_end, tangent_end=t_end, n_profiles=len(s),
+        n_rejected=int(len(s) - good.size), coarse=coarse,
+        shift_px=frame_shift(model, frame) if getattr(params, "jitter_compensation", True) else np.zeros(2),
+    )
