@@ -27,14 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
-from twin.scene import _REQUIRED, SceneError, _Table
+from twin.scene import _REQUIRED, SceneError, _Table, read_toml
 
 from .actuator import JOINTS, JointValues, SoftLimits
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 __all__ = ["SequenceError", "ExperimentError", "Step", "Sequence", "load_sequence", "sequence_from_dict",
            "flatten", "check_limits", "check_background_first", "grab_targets", "ExperimentRunner", "STEP_KINDS"]
@@ -174,16 +170,7 @@ def sequence_from_dict(data: dict, source: str = "<sequence>") -> Sequence:
 def load_sequence(path) -> Sequence:
     """Load and validate a sequence TOML file; every error names the file and the key."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise SequenceError(f"{path}: sequence file not found") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise SequenceError(f"{path}: cannot read sequence file ({exc.__class__.__name__})") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SequenceError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path, "sequence file", SequenceError)
     return sequence_from_dict(data, source=str(path))
 
 

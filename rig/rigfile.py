@@ -19,18 +19,13 @@ Typical use::
 """
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from twin.scene import _REQUIRED, SceneError, _Table, load_scene
+from twin.scene import _REQUIRED, SceneError, _Table, load_scene, read_toml
 
 from .actuator import JOINTS, Actuator, JointValues, SoftLimits
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 __all__ = ["RigFileError", "JointMap", "RigFile", "Rig", "load_rig_file", "rig_file_from_dict",
            "CAMERA_KINDS", "ACTUATOR_KINDS"]
@@ -434,14 +429,5 @@ def load_rig_file(path, serial: str | None = None) -> RigFile:
     ``serial`` (``--serial URL``) overrides ``actuator.port`` of an arduino actuator.
     """
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise RigFileError(f"{path}: rig file not found") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise RigFileError(f"{path}: cannot read rig file ({exc.__class__.__name__})") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise RigFileError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path, "rig file", RigFileError)
     return rig_file_from_dict(data, source=str(path), serial=serial)

@@ -24,7 +24,6 @@ axes and its first inner corner at ``world.origin_mm``.
 from __future__ import annotations
 
 import json
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,12 +33,8 @@ from recon.calibration import BoardSpec
 from recon.camera import Camera, rotation_matrix
 
 from .noise import expose, frame_rng, jitter_camera
-from .scene import _POS, _REQUIRED, Scene, SceneError, _Table, load_scene
+from .scene import _POS, _REQUIRED, Scene, SceneError, _Table, load_scene, read_toml
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 __all__ = [
     "CalibrationScene",
@@ -260,16 +255,7 @@ def calibration_scene_from_dict(data: dict, source: str = "<calibration scene>",
 def load_calibration_scene(path) -> CalibrationScene:
     """Load and validate a calibration scene; ``rig_scene`` is relative to the file's folder."""
     path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise SceneError(f"{path}: calibration scene file not found") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise SceneError(f"{path}: cannot read calibration scene file ({exc.__class__.__name__})") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path, "calibration scene file", SceneError)
     return calibration_scene_from_dict(data, source=str(path), base_dir=path.parent)
 
 

@@ -8,7 +8,7 @@ got -1``.
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +23,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["Scene", "SceneError", "load_scene", "scene_from_dict", "NoiseModel", "SetDressing", "Light"]
+__all__ = ["Scene", "SceneError", "load_scene", "read_toml", "scene_from_dict", "NoiseModel", "SetDressing", "Light"]
 
 
 class SceneError(ValueError):
@@ -433,17 +433,23 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     )
 
 
-def load_scene(path) -> Scene:
-    """Load and validate a scene TOML file; every error names the file and the key."""
+def read_toml(path, what: str, error=SceneError) -> dict:
+    """Parse a TOML file; ``error`` (one line) names the file and says whether it is missing, unreadable or not TOML."""
     path = Path(path)
     try:
         text = path.read_text()
     except FileNotFoundError:
-        raise SceneError(f"{path}: scene file not found") from None
+        raise error(f"{path}: {what} not found") from None
     except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise SceneError(f"{path}: cannot read scene file ({exc.__class__.__name__})") from None
+        raise error(f"{path}: cannot read {what} ({exc.__class__.__name__})") from None
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{path}: not valid TOML ({exc})") from None
+        raise error(f"{path}: not valid TOML ({exc})") from None
+
+
+def load_scene(path) -> Scene:
+    """Load and validate a scene TOML file; every error names the file and the key."""
+    path = Path(path)
+    data = read_toml(path, "scene file", SceneError)
     return scene_from_dict(data, source=str(path))

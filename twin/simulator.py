@@ -8,8 +8,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from .kinematics import solve
 from .mesh import tube_meshes
 from .noise import expose, frame_rng, jitter_camera

@@ -93,8 +93,10 @@ def _run(args) -> int:
         # The live logger reads what the runner has just written to OUT/live after each frame.
         watcher = LiveLogger().watch(out, out / "live")
         if watcher is not None:
-            def on_frame(index, pair, joints, result):
+            def log_frame(index, pair, joints, result):
                 watcher("experiment", index + 1, index + 1)
+
+            on_frame = log_frame
     old = signal.signal(signal.SIGTERM, _sigterm)
     runner = None
     status = 0
