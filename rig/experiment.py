@@ -248,12 +248,6 @@ def check_background_first(seq: Sequence) -> None:
 
 
 # ----------------------------------------------------------------------------- runner
-def _atomic_json(path: Path, data) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, allow_nan=False, default=_json_default) + "\n")
-    os.replace(tmp, path)
-
-
 def _json_default(o):
     if isinstance(o, (np.floating, np.integer)):
         return o.item()
@@ -579,7 +573,7 @@ class ExperimentRunner:
         return result
 
     def _write_live(self, final: bool) -> None:
-        from .reconstruct import summarize
+        from .reconstruct import summarize, write_json_atomic
 
         live = self.out / "live"
         if not live.exists():
@@ -587,7 +581,7 @@ class ExperimentRunner:
         summary = summarize(self._records, self.method, self.params, self.out, self._mm_px or float("nan"))
         summary["mm_per_px"] = _finite(summary["mm_per_px"])
         summary["live"] = True
-        _atomic_json(live / "summary.json", summary)
+        write_json_atomic(live / "summary.json", summary)
         if final:
             tmp = live / ".backbones.npz.tmp.npz"
             np.savez_compressed(tmp, frames=np.array(sorted(self._backbones), dtype=np.int64),

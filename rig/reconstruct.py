@@ -23,10 +23,11 @@ from recon.params import params_to_dict
 
 from .session import Session, SessionError
 
-__all__ = ["reconstruct_session", "load_background_frames", "summarize", "format_table"]
+__all__ = ["reconstruct_session", "write_json_atomic", "load_background_frames", "summarize", "format_table"]
 
 
-def _atomic_json(path: Path, data: dict) -> None:
+def write_json_atomic(path: Path, data: dict) -> None:
+    """Write JSON to a temporary name and rename it: readers never see half a file."""
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(json.dumps(data, indent=2, allow_nan=False, default=_json_default) + "\n")
     os.replace(tmp, path)
@@ -210,7 +211,7 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
                 rec["note"] = f"not scored: {_one_line(exc)}"
         records.append(rec)
         summary = summarize(records, method, params, session.dir, mm_px)
-        _atomic_json(out / "summary.json", summary)
+        write_json_atomic(out / "summary.json", summary)
         if progress:
             post = {"ms": f"{rec['ms']:.0f}"} if rec["status"] == "ok" else {"failed": fr.index}
             progress("reconstruct", n + 1, len(todo), **post)
@@ -220,7 +221,7 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
         **{f"frame_{i:06d}": p for i, p in backbones.items()},
     )
     summary = summarize(records, method, params, session.dir, mm_px)
-    _atomic_json(out / "summary.json", summary)
+    write_json_atomic(out / "summary.json", summary)
     return summary
 
 
