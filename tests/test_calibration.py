@@ -359,7 +359,9 @@ def test_reconstruction_with_calibrated_rig_is_as_good_as_with_true_rig(calibrat
     from twin.record import render_session
 
     rig_cal, _ = calibrated
-    scene = dc_replace(paper_scene.with_frames([paper_scene.joints[i] for i in (2, 9, 13, 18)]), background_frames=8)
+    # Every other frame of the paper's sequence: a tip-error median over a handful of frames moves
+    # by tenths of a millimetre between two rigs that differ by micrometres.
+    scene = dc_replace(paper_scene.with_frames(paper_scene.joints[::2]), background_frames=8)
     true_dir, cal_dir = tmp_path / "true", tmp_path / "calibrated"
     with SessionWriter(true_dir, scene.rig, source="twin", n_tubes=scene.robot.n_tubes) as w:
         render_session(scene, w)
