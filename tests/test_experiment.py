@@ -240,19 +240,24 @@ def test_sigkill_keeps_committed_frames(files, tmp_path):
     _report("SIGKILL", f"killed after {k} committed frames; {n} readable and reconstructed")
 
 
-def test_interrupt_stops_actuator_and_keeps_frames(twin_session, tmp_path):
-    """Ctrl-C (KeyboardInterrupt) mid-experiment: motors stopped, frames kept. On a replay rig (fast)."""
-    rig_file = _write(tmp_path / "replay.toml", f"""
+def _replay_rig_file(tmp_path, session):
+    """A rig file replaying ``session`` (cameras and actuator log)."""
+    return _write(tmp_path / "replay.toml", f"""
 format = "ctr-bench-rig"
 version = 1
 [joints]
 home_extension_mm = [50.0, 55.0]
 [cameras]
 kind = "replay"
-session = "{twin_session}"
+session = "{session}"
 [actuator]
 kind = "replay"
 """)
+
+
+def test_interrupt_stops_actuator_and_keeps_frames(twin_session, tmp_path):
+    """Ctrl-C (KeyboardInterrupt) mid-experiment: motors stopped, frames kept. On a replay rig (fast)."""
+    rig_file = _replay_rig_file(tmp_path, twin_session)
     spec = load_rig_file(rig_file)
     seq = load_sequence(_write(tmp_path / "s.toml", SEQUENCE))
     stopped = []
@@ -365,17 +370,7 @@ time_scale = 20.0
 
 
 def test_replay_backend_replays_session(twin_session, tmp_path):
-    rig_file = _write(tmp_path / "replay.toml", f"""
-format = "ctr-bench-rig"
-version = 1
-[joints]
-home_extension_mm = [50.0, 55.0]
-[cameras]
-kind = "replay"
-session = "{twin_session}"
-[actuator]
-kind = "replay"
-""")
+    rig_file = _replay_rig_file(tmp_path, twin_session)
     out = tmp_path / "again"
     assert cli(["experiment", str(_write(tmp_path / "s.toml", SEQUENCE)), "--rig", str(rig_file),
                 "--out", str(out), "--reconstruct", "paper", "--quiet"]) == 0
