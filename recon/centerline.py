@@ -80,6 +80,8 @@ class CenterlineParams:
         and was thresholded away) get a centerline along their middle, the
         ridge of their distance transform, labelled ``THIN``, where they are
         at least this wide (px); 0 disables it (see :func:`extract_centerline`).
+    outer_disk_position, inner_disk_margin_px : float
+        How the disks are sized from the tube radii (see :func:`disk_radii`).
     """
 
     outer_radius_px: int = 5
@@ -91,6 +93,8 @@ class CenterlineParams:
     edge_loss_px: float = 0.5
     edge_loss_range_px: float = 1.5
     thin_min_width_px: float = 3.0
+    outer_disk_position: float = 0.5
+    inner_disk_margin_px: float = 1.0
 
     def __post_init__(self):
         if not 1 <= int(self.inner_radius_px) <= int(self.outer_radius_px):
@@ -98,6 +102,10 @@ class CenterlineParams:
                 "CenterlineParams: need 1 <= inner_radius_px <= outer_radius_px, "
                 f"got {self.inner_radius_px} and {self.outer_radius_px}"
             )
+        if not 0.0 <= self.outer_disk_position <= 1.0:
+            raise ValueError(f"CenterlineParams: outer_disk_position must be in [0, 1], got {self.outer_disk_position}")
+        if self.inner_disk_margin_px < 0:
+            raise ValueError(f"CenterlineParams: inner_disk_margin_px must be >= 0, got {self.inner_disk_margin_px}")
         if self.outer_tube_px > 0 and not 0 < self.inner_tube_px < self.outer_tube_px:
             raise ValueError(
                 "CenterlineParams: need 0 < inner_tube_px < outer_tube_px, "
@@ -110,7 +118,13 @@ class CenterlineParams:
         return self.outer_tube_px > 0
 
 
-def disk_radii(outer_tube_px: float, inner_tube_px: float, edge_loss_px: float = 0.5) -> tuple[int, int]:
+def disk_radii(
+    outer_tube_px: float,
+    inner_tube_px: float,
+    edge_loss_px: float = 0.5,
+    outer_disk_position: float = 0.5,
+    inner_disk_margin_px: float = 1.0,
+) -> tuple[int, int]:
     """Disk radii (px) for tubes of given image radii whose silhouettes lose ``edge_loss_px`` per side.
 
     A silhouette band of half-width ``h`` (px) has a distance transform of
@@ -119,12 +133,13 @@ def disk_radii(outer_tube_px: float, inner_tube_px: float, edge_loss_px: float =
     edge loss`` for each tube:
 
     * the large disk must remove the inner tube (``r >= h_inner + 0.5``) and
-      leave a line on the outer one (``r <= h_outer - 0.5``); it is taken
-      half-way, ``round((h_outer + h_inner) / 2)``, the most margin either
-      way (the tubes' widths vary along the image with depth and anti-
-      aliasing);
+      leave a line on the outer one (``r <= h_outer - 0.5``); by default it
+      is taken half-way, ``round((h_outer + h_inner) / 2)``, the most margin
+      either way (the tubes' widths vary along the image with depth and
+      anti-aliasing); ``outer_disk_position`` moves it between the two;
     * the small disk leaves a line ~3 px wide on the inner tube,
-      ``round(h_inner - 1)``: one pixel of slack on either side of its axis.
+      ``round(h_inner - 1)``: one pixel (``inner_disk_margin_px``) of slack
+      on either side of its axis.
 
     Parameters
     ----------
@@ -132,6 +147,12 @@ def disk_radii(outer_tube_px: float, inner_tube_px: float, edge_loss_px: float =
         Tube radii in the image (px).
     edge_loss_px : float
         Silhouette narrower than the tube by this much per side (px).
+    outer_disk_position : float
+        Where the large disk's radius lies between the inner tube's
+        half-width (0) and the outer tube's (1).
+    inner_disk_margin_px : float
+        The small disk is this much (px) smaller than the inner tube's
+        half-width.
 
     Returns
     -------
@@ -140,8 +161,9 @@ def disk_radii(outer_tube_px: float, inner_tube_px: float, edge_loss_px: float =
     """
     h_out = float(outer_tube_px) - float(edge_loss_px)
     h_in = float(inner_tube_px) - float(edge_loss_px)
-    inner = max(1, int(np.floor(h_in - 1.0 + 0.5)))
-    outer = max(inner + 1, int(np.floor(0.5 * (h_out + h_in) + 0.5)))
+    inner = max(1, int(np.floor(h_in - float(inner_disk_margin_px) + 0.5)))
+    t = float(outer_disk_position)
+    outer = max(inner + 1, int(np.floor((1.0 - t) * h_in + t * h_out + 0.5)))
     return outer, inner
 
 
@@ -154,6 +176,8 @@ def centerline_params_for(
     *,
     edge_loss_px: float = CenterlineParams.edge_loss_px,
     adaptive: bool = False,
+    outer_disk_position: float = CenterlineParams.outer_disk_position,
+    inner_disk_margin_px: float = CenterlineParams.inner_disk_margin_px,
 ) -> CenterlineParams:
     """Structuring elements for tubes of given radii seen by ``camera``.
 
@@ -171,17 +195,19 @@ def centerline_params_for(
     adaptive : bool
         Size the disks per frame from the silhouette's measured width (the
         tube radii in pixels are stored in the result) instead of once here.
+    outer_disk_position, inner_disk_margin_px : float
+        See :func:`disk_radii`.
 
     Returns
     -------
     CenterlineParams
-        Disk radii from :func:`disk_radii` (with ``edge_loss_px``).
+        Disk radii from :func:`disk_radii`.
     """
     mmpp = camera.mm_per_pixel_at(at_point_world_mm)
     outer_px, inner_px = outer_tube_radius_mm / mmpp, inner_tube_radius_mm / mmpp
     if not inner_px < outer_px:
         raise ValueError(f"the inner tube ({inner_tube_radius_mm} mm) must be thinner than the outer one ({outer_tube_radius_mm} mm)")
-    outer, inner = disk_radii(outer_px, inner_px, edge_loss_px)
+    outer, inner = disk_radii(outer_px, inner_px, edge_loss_px, outer_disk_position, inner_disk_margin_px)
     return CenterlineParams(
         outer_radius_px=outer,
         inner_radius_px=inner,
@@ -189,6 +215,8 @@ def centerline_params_for(
         outer_tube_px=outer_px if adaptive else 0.0,
         inner_tube_px=inner_px if adaptive else 0.0,
         edge_loss_px=edge_loss_px,
+        outer_disk_position=outer_disk_position,
+        inner_disk_margin_px=inner_disk_margin_px,
     )
 
 
@@ -336,7 +364,11 @@ def extract_centerline(
         crop[m:-m, m:-m] = sil_u8[y : y + h, x : x + w]
         loss = measure_edge_loss(crop, params)
         r_out, r_in = disk_radii(
-            params.outer_tube_px, params.inner_tube_px, params.edge_loss_px if loss is None else loss
+            params.outer_tube_px,
+            params.inner_tube_px,
+            params.edge_loss_px if loss is None else loss,
+            params.outer_disk_position,
+            params.inner_disk_margin_px,
         )
     if info is not None:
         info.update(outer_radius_px=r_out, inner_radius_px=r_in, edge_loss_px=loss)

@@ -62,6 +62,12 @@ class PaperParams:
         Size the structuring elements per frame from the tube radii in pixels
         and the silhouette's measured width (default); False: once per
         session from the tube radii and ``edge_loss_px``.
+    outer_disk_position : float
+        Where the large disk's radius lies between the inner tube's and the
+        outer tube's half-width in the image (0 to 1; 0.5 the most margin
+        either way). See :func:`recon.centerline.disk_radii`.
+    inner_disk_margin_px : float
+        The small disk's radius is the inner tube's half-width minus this (px).
     carving : CarvingParams
     backbone : BackboneParams
     """
@@ -73,6 +79,8 @@ class PaperParams:
     centerline_min_region_px: int = CenterlineParams.min_region_px
     edge_loss_px: float = CenterlineParams.edge_loss_px
     measure_width: bool = True
+    outer_disk_position: float = CenterlineParams.outer_disk_position
+    inner_disk_margin_px: float = CenterlineParams.inner_disk_margin_px
     carving: CarvingParams = field(default_factory=CarvingParams)
     backbone: BackboneParams = field(default_factory=BackboneParams)
 
@@ -209,6 +217,8 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
             min_region_px=params.centerline_min_region_px,
             edge_loss_px=params.edge_loss_px,
             adaptive=params.measure_width,
+            outer_disk_position=params.outer_disk_position,
+            inner_disk_margin_px=params.inner_disk_margin_px,
         )
         mmpp = cam.mm_per_pixel_at(rig.base_point_world_mm)
         radii[name] = (params.outer_tube_radius_mm / mmpp, params.inner_tube_radius_mm / mmpp)
