@@ -16,7 +16,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["params_from_dict", "params_to_dict", "load_params", "dumps_toml"]
+__all__ = ["params_from_dict", "params_to_dict", "load_params", "read_params_file", "dumps_toml"]
 
 
 def _is_dataclass_type(tp) -> bool:
@@ -122,8 +122,12 @@ def dumps_toml(data: dict, header: str = "") -> str:
     return "\n".join(lines).lstrip("\n") + "\n"
 
 
-def load_params(cls, path):
-    """Read a TOML parameter file into ``cls``; a top-level ``method`` key is ignored here."""
+def read_params_file(path, method: str | None = None) -> dict:
+    """The tables of a TOML parameter file, without its top-level ``method`` key.
+
+    Raises ValueError (one line, naming the file) when the file is missing, is
+    not TOML, or was written for another method than ``method``.
+    """
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text())
@@ -131,5 +135,12 @@ def load_params(cls, path):
         raise ValueError(f"{path}: parameter file not found") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: not valid TOML ({exc})") from None
-    data.pop("method", None)
-    return params_from_dict(cls, data, source=str(path))
+    written_for = data.pop("method", None)
+    if method is not None and written_for is not None and written_for != method:
+        raise ValueError(f"{path}: parameters of method {written_for!r}, not {method!r} (pass --method {written_for})")
+    return data
+
+
+def load_params(cls, path, method: str | None = None):
+    """Read a TOML parameter file into ``cls`` (see :func:`read_params_file`); unset keys keep defaults."""
+    return params_from_dict(cls, read_params_file(path, method), source=str(path))

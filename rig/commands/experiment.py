@@ -76,7 +76,7 @@ def _run(args) -> int:
         from .reconstruct import one_core
 
         m = get_method(args.reconstruct)
-        params = load_params(m.params_type, args.params) if args.params else m.params_type()
+        params = load_params(m.params_type, args.params, args.reconstruct) if args.params else m.params_type()
         one_core()
     elif args.params:
         raise CLIError("--params needs --reconstruct METHOD")

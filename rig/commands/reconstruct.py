@@ -19,13 +19,28 @@ def add_report_options(p) -> None:
                    help="show images, backbones and errors live in a rerun viewer (needs the 'live' extra: rerun-sdk)")
 
 
-def method_params(args):
-    """The parameter dataclass for ``args.method``, from ``--params`` when given."""
+def method_params(args, session_dir=None):
+    """The parameter dataclass for ``args.method``, from ``--params`` when given.
+
+    The tube radii describe the robot, not the method: unless the parameter
+    file sets them, they are taken from the session's robot description
+    (session.json) when ``session_dir`` has one.
+    """
+    from dataclasses import replace
+
     from recon.methods import get_method
-    from recon.params import load_params
+    from recon.params import params_from_dict, read_params_file
 
     m = get_method(args.method)
-    return load_params(m.params_type, args.params) if args.params else m.params_type()
+    data = read_params_file(args.params, args.method) if args.params else {}
+    params = params_from_dict(m.params_type, data, source=str(args.params or "defaults"))
+    if session_dir is not None and not {"outer_tube_radius_mm", "inner_tube_radius_mm"} & set(data):
+        from rig.session import Session
+
+        radii = Session(session_dir).robot_tube_radii_mm
+        if radii is not None and hasattr(params, "outer_tube_radius_mm"):
+            params = replace(params, outer_tube_radius_mm=radii[0], inner_tube_radius_mm=radii[1])
+    return params
 
 
 def one_core() -> None:
@@ -39,7 +54,7 @@ def reconstruct_and_report(session_dir: Path, out: Path, args) -> dict:
     from rig.progress import Progress
     from rig.reconstruct import format_table, reconstruct_session
 
-    params = method_params(args)
+    params = method_params(args, session_dir)
     one_core()
     progress = Progress(enabled=not getattr(args, "quiet", False))
     live = None
