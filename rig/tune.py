@@ -382,7 +382,7 @@ def _worker_evaluate(params):
 
 def tune(method: str, sessions, base_params=None, *, maxiter: int = 12, popsize: int = 4, seed: int = 0,
          failure_penalty_mm: float = 5.0, tie_mm: float = 0.002, knobs=None, jobs: int = 1,
-         sensitivity_points: int = 0, progress=None) -> TuneResult:
+         sensitivity_points: int = 0, progress=None, on_row=None) -> TuneResult:
     """Search the method's knobs with differential evolution over ``sessions``.
 
     Parameters
@@ -411,6 +411,9 @@ def tune(method: str, sessions, base_params=None, *, maxiter: int = 12, popsize:
         When > 0, also sweep each knob alone over this many values (see
         :func:`sensitivity`).
     progress : callable(stage, done, total, **postfix), optional
+    on_row : callable(dict), optional
+        Called with every evaluation's row as soon as it is made (the caller
+        writes them out, so an interrupted search keeps what it did).
 
     Returns
     -------
@@ -429,6 +432,8 @@ def tune(method: str, sessions, base_params=None, *, maxiter: int = 12, popsize:
         ms_default = default.ms_median if np.isfinite(default.ms_median) else 100.0
         x0 = knob_values(base, knobs)
         history = [_row(knobs, x0, default, objective_value(default, ms_default, tie_mm), stage="default")]
+        record = on_row or (lambda row: None)
+        record(history[0])
         n_pop = max(5, popsize * len(knobs))  # SciPy's differential evolution needs at least 5 members
         total = (maxiter + 1) * n_pop
         cache = {tuple(x0): (history[0]["objective"], default)}
@@ -443,6 +448,7 @@ def tune(method: str, sessions, base_params=None, *, maxiter: int = 12, popsize:
             for key, ev in zip(todo, ev_many.many(todo_params)):
                 cache[key] = (objective_value(ev, ms_default, tie_mm), ev)
                 history.append(_row(knobs, key, ev, cache[key][0], stage="search"))
+                record(history[-1])
             if progress:
                 best = min(r["objective"] for r in history)
                 progress("tune", min(len(history) - 1, total), total, best=f"{best:.4f}")
@@ -469,13 +475,13 @@ def tune(method: str, sessions, base_params=None, *, maxiter: int = 12, popsize:
             tuned = cache[tuple(knob_values(tuned_params, knobs))][1]
         result = TuneResult(method, knobs, base, tuned_params, default, tuned, history)
         if sensitivity_points > 0:
-            sensitivity(result, ev_many, sensitivity_points, ms_default, tie_mm, progress)
+            sensitivity(result, ev_many, sensitivity_points, ms_default, tie_mm, progress, record)
     result.seconds = time.perf_counter() - t_start
     return result
 
 
 def sensitivity(result: TuneResult, evaluator: Evaluator, points: int, ms_default: float, tie_mm: float,
-                progress=None) -> list:
+                progress=None, on_row=None) -> list:
     """Sweep each knob alone across its range, the others at their tuned values.
 
     Integer knobs with at most ``points`` values are swept over all of them.
@@ -504,6 +510,8 @@ def sensitivity(result: TuneResult, evaluator: Evaluator, points: int, ms_defaul
         for (_, v, x), ev in zip(mine, evs):
             rows.append(_row(knobs, x, ev, objective_value(ev, ms_default, tie_mm), stage="sensitivity", knob=k.path,
                              value=v))
+            if on_row:
+                on_row(rows[-1])
         if progress:
             progress("sensitivity", len(rows), len(jobs), knob=k.path)
     result.sensitivity = rows

@@ -47,13 +47,22 @@ def _knobs(method: str, text: str | None):
     return tuple(known[n] for n in dict.fromkeys(names))
 
 
-def _write_csv(path: Path, rows: list) -> None:
-    keys = list(dict.fromkeys(k for r in rows for k in r))
-    with open(path, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=keys)
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
+_FIGURES = ("objective", "penalized_error_mm", "mean_error_mm", "tip_error_mm", "max_error_mm", "failures", "ms_median")
+
+
+class _CsvLog:
+    """Rows appended to a CSV as they come (an interrupted search keeps every evaluation it made)."""
+
+    def __init__(self, path: Path, knobs):
+        self.path = path
+        self.fields = ["stage", "knob", "value", *(k.path for k in knobs), *_FIGURES]
+        with open(path, "w", newline="") as fh:
+            csv.DictWriter(fh, fieldnames=self.fields).writeheader()
+
+    def __call__(self, row: dict) -> None:
+        with open(self.path, "a", newline="") as fh:
+            csv.DictWriter(fh, fieldnames=self.fields, restval="").writerow(
+                {k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
 
 
 def _fmt(v, p=3):
@@ -107,6 +116,8 @@ def _run(args) -> int:
     base = method_params(args)
     knobs = _knobs(args.method, args.knobs)
     one_core()
+    report.mkdir(parents=True, exist_ok=True)
+    history = _CsvLog(report / "history.csv", knobs)
     progress = Progress(enabled=not args.quiet)
     t0 = time.perf_counter()
     sessions = load_tune_sessions(scenes, args.cache, progress=progress)
@@ -115,11 +126,8 @@ def _run(args) -> int:
           f"differential evolution: {args.maxiter} generations x {args.popsize} x knobs")
     result = tune(args.method, sessions, base, knobs=knobs, maxiter=args.maxiter, popsize=args.popsize, seed=args.seed,
                   failure_penalty_mm=args.failure_penalty_mm, tie_mm=args.tie_mm, jobs=args.jobs,
-                  sensitivity_points=0 if args.no_sensitivity else args.points, progress=progress)
-    report.mkdir(parents=True, exist_ok=True)
-    _write_csv(report / "history.csv", result.history)
+                  sensitivity_points=0 if args.no_sensitivity else args.points, progress=progress, on_row=history)
     if result.sensitivity:
-        _write_csv(report / "sensitivity.csv", result.sensitivity)
         plot_sensitivity(result, report)
     print(_table("\ntuning scenes (seen by the search):", result.default, result.tuned))
     held = None
@@ -163,8 +171,8 @@ def _run(args) -> int:
         "holdout_tuned": _evaluation_dict(held[1]) if held else None,
     })
     print("\n" + "\n".join(changed))
-    print(f"\nwrote {out} and {report}/ (history.csv, summary.json"
-          + ("" if args.no_sensitivity else ", sensitivity.csv, sensitivity*.png") + f") in {time.perf_counter() - t0:.0f} s")
+    print(f"\nwrote {out} and {report}/ (history.csv: every evaluation, summary.json"
+          + ("" if args.no_sensitivity else ", sensitivity*.png") + f") in {time.perf_counter() - t0:.0f} s")
     return 0
 
 
