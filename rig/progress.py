@@ -15,10 +15,13 @@ class Progress:
     ----------
     enabled : bool
         False silences it (``--quiet``).
+    units : dict, optional
+        Stage -> what one step is (default "frame").
     """
 
-    def __init__(self, enabled: bool = True):
+    def __init__(self, enabled: bool = True, units: dict | None = None):
         self.enabled = enabled
+        self.units = dict(units or {})
         self._bars = {}
 
     def __call__(self, stage: str, done: int, total: int, **postfix) -> None:
@@ -26,7 +29,7 @@ class Progress:
             return
         bar = self._bars.get(stage)
         if bar is None:
-            bar = tqdm(total=total, desc=f"{stage:>12s}", unit="frame", file=sys.stderr, leave=True,
+            bar = tqdm(total=total, desc=f"{stage:>12s}", unit=self.units.get(stage, "frame"), file=sys.stderr, leave=True,
                        mininterval=0.5 if sys.stderr.isatty() else 5.0, dynamic_ncols=True)
             self._bars[stage] = bar
         bar.update(done - bar.n)

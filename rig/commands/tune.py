@@ -118,7 +118,7 @@ def _run(args) -> int:
     one_core()
     report.mkdir(parents=True, exist_ok=True)
     history = _CsvLog(report / "history.csv", knobs)
-    progress = Progress(enabled=not args.quiet)
+    progress = Progress(enabled=not args.quiet, units={"tune": "eval", "sensitivity": "eval"})
     t0 = time.perf_counter()
     sessions = load_tune_sessions(scenes, args.cache, progress=progress)
     n_frames = sum(len(s.frames) for s in sessions)
