@@ -68,6 +68,9 @@ class Knob:
         Search integers only.
     unit : str
         Unit for plots and tables ("" for dimensionless).
+    step : float
+        Values are rounded to a multiple of this (0: not rounded): finer
+        differences do not matter, and the parameter file stays readable.
     """
 
     path: str
@@ -75,6 +78,7 @@ class Knob:
     high: float
     integer: bool = False
     unit: str = ""
+    step: float = 0.0
 
     @property
     def label(self) -> str:
@@ -85,21 +89,21 @@ class Knob:
 #: sweep shows where each parameter stops working.
 KNOBS = {
     "paper": (
-        Knob("silhouette.threshold", 0.05, 0.60, unit="normalized |difference|"),
+        Knob("silhouette.threshold", 0.05, 0.60, unit="normalized |difference|", step=0.005),
         Knob("background.k", 1, 8, integer=True, unit="eigenbackgrounds"),
-        Knob("outer_disk_position", 0.1, 0.9, unit="0 = inner tube, 1 = outer tube half-width"),
-        Knob("inner_disk_margin_px", 0.0, 2.5, unit="px"),
+        Knob("outer_disk_position", 0.1, 0.9, unit="0 = inner tube, 1 = outer tube half-width", step=0.01),
+        Knob("inner_disk_margin_px", 0.0, 2.5, unit="px", step=0.05),
         Knob("carving.resolution", 50, 200, integer=True, unit="voxels per axis"),
     ),
     "fast": (
         Knob("background.k", 1, 8, integer=True, unit="eigenbackgrounds"),
-        Knob("coarse_threshold_sigma", 3.0, 12.0, unit="noise sigma"),
-        Knob("edge_threshold_sigma", 2.0, 10.0, unit="noise sigma"),
-        Knob("edge_min_dn", 4.0, 30.0, unit="DN"),
-        Knob("min_width_fraction", 0.3, 0.9, unit="of the inner tube's width"),
-        Knob("outlier_sigma", 2.0, 8.0, unit="MAD"),
-        Knob("spline_knot_px", 15.0, 80.0, unit="px"),
-        Knob("knot_mm", 2.0, 10.0, unit="mm"),
+        Knob("coarse_threshold_sigma", 3.0, 12.0, unit="noise sigma", step=0.1),
+        Knob("edge_threshold_sigma", 2.0, 10.0, unit="noise sigma", step=0.1),
+        Knob("edge_min_dn", 4.0, 30.0, unit="DN", step=0.5),
+        Knob("min_width_fraction", 0.3, 0.9, unit="of the inner tube's width", step=0.01),
+        Knob("outlier_sigma", 2.0, 8.0, unit="MAD", step=0.1),
+        Knob("spline_knot_px", 15.0, 80.0, unit="px", step=1.0),
+        Knob("knot_mm", 2.0, 10.0, unit="mm", step=0.1),
     ),
 }
 
@@ -125,10 +129,15 @@ def knob_values(params, knobs) -> np.ndarray:
 
 
 def with_knobs(params, knobs, x):
-    """``params`` with each knob set from the vector ``x`` (integers rounded, values clipped to range)."""
+    """``params`` with each knob set from the vector ``x`` (clipped to range, rounded to the knob's step)."""
     for k, v in zip(knobs, x):
         v = float(np.clip(v, k.low, k.high))
-        params = _set(params, k.path, int(round(v)) if k.integer else v)
+        if k.integer:
+            v = int(round(v))
+        elif k.step > 0:
+            # round() of the quotient, then trim float noise: 0.25 stays 0.25 in the file.
+            v = float(np.clip(round(round(v / k.step) * k.step, 10), k.low, k.high))
+        params = _set(params, k.path, v)
     return params
 
 

@@ -38,10 +38,11 @@ def test_every_knob_names_a_parameter_and_its_default_is_in_range():
 
 
 def test_with_knobs_rounds_integers_clips_to_range_and_sets_nested_fields():
-    knobs = (Knob("background.k", 1, 8, integer=True), Knob("silhouette.threshold", 0.05, 0.6))
+    knobs = (Knob("background.k", 1, 8, integer=True), Knob("silhouette.threshold", 0.05, 0.6, step=0.005))
     p = with_knobs(PaperParams(), knobs, [3.6, 0.9])
     assert p.background.k == 4 and isinstance(p.background.k, int)
     assert p.silhouette.threshold == 0.6
+    assert with_knobs(PaperParams(), knobs, [1, 0.23713]).silhouette.threshold == 0.235
     assert p.silhouette.min_contrast == PaperParams().silhouette.min_contrast  # siblings untouched
     assert list(knob_values(p, knobs)) == [4.0, 0.6]
 
