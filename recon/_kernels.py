@@ -76,12 +76,18 @@ def profile_edges_nb(frame, stack, coeff, cu, cv, axis, half, threshold):
 
 
 @njit(cache=True, nogil=True)
-def coarse_foreground_nb(frame, factor, lo, hi, rx0, ry0, rx1, ry1, mean_c, basis_c, thr_c, coeff):
-    """Coarse foreground mask of the ROI: |2x2 average - background| > threshold, per coarse pixel.
+def coarse_foreground_nb(frame, factor, lo, hi, rx0, ry0, rx1, ry1, mean_c, basis_c, coarse_stack, thr_c, coeff, reach):
+    """Coarse foreground mask of the ROI (see :func:`recon.subpixel.coarse_path`).
 
-    Returns the (ry1-ry0, rx1-rx0) uint8 mask and the largest ``|res| - thr``.
+    A coarse pixel is foreground when ``|2x2 average - background|`` exceeds
+    its threshold, or, within ``reach`` coarse pixels of such a pixel, when the
+    mean absolute difference of its 2x2 pixels does
+    (:func:`recon.subpixel.coarse_abs_difference`).
+    Returns the (ry1-ry0, rx1-rx0) uint8 mask and the largest excess over the
+    threshold.
     """
     k = basis_c.shape[0]
+    k1 = coarse_stack.shape[3]
     hr = ry1 - ry0
     wr = rx1 - rx0
     mask = np.zeros((hr, wr), np.uint8)
@@ -99,6 +105,33 @@ def coarse_foreground_nb(frame, factor, lo, hi, rx0, ry0, rx1, ry1, mean_c, basi
             for j in range(k):
                 r -= coeff[j + 1] * basis_c[j, yc, xc]
             e = abs(r) - thr_c[yc, xc]
+            if e > 0.0:
+                mask[y, x] = 1
+            if e > best:
+                best = e
+    near = np.zeros((hr, wr), np.uint8)
+    for y in range(hr):
+        for x in range(wr):
+            if mask[y, x]:
+                for yy in range(max(0, y - reach), min(hr, y + reach + 1)):
+                    for xx in range(max(0, x - reach), min(wr, x + reach + 1)):
+                        near[yy, xx] = 1
+    for y in range(hr):
+        yc = ry0 + y
+        for x in range(wr):
+            if mask[y, x] or not near[y, x]:
+                continue
+            xc = rx0 + x
+            acc = 0.0
+            i = 0
+            for fy in (yc * factor + lo, yc * factor + hi):
+                for fx in (xc * factor + lo, xc * factor + hi):
+                    b = 0.0
+                    for j in range(k1):
+                        b += coeff[j] * coarse_stack[yc, xc, i, j]
+                    acc += abs(np.float64(frame[fy, fx]) - b)
+                    i += 1
+            e = 0.25 * acc - thr_c[yc, xc]
             if e > 0.0:
                 mask[y, x] = 1
             if e > best:

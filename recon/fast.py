@@ -37,7 +37,7 @@ from .carving import rig_center
 from .epipolar import EpipolarFrame, align_dp, conditioning, monotonic, triangulate_rays
 from .errors import FrameError
 from .methods import Method, register_method
-from .paper import camera_order
+from .paper import camera_order, check_tube_widths
 from .rigcal import RigCalibration
 from . import subpixel
 from .subpixel import ViewCenterline, ViewModel, extract_view, fit_curve, prepare_view
@@ -59,6 +59,12 @@ class FastParams:
         Eigenbackgrounds (as the paper: 5).
     outer_tube_radius_mm, inner_tube_radius_mm : float
         Tube radii (mm): widths expected in the images, and the end cap.
+    min_tube_width_px : float
+        Every frame is refused (:class:`~recon.errors.FrameError`) when a
+        tube is narrower than this in a camera's image at the robot base
+        (px): below it the thin tube is lost and the backbone silently stops
+        short of the tip (see docs/envelope.md, "Tube too thin to resolve",
+        for the measurement behind the default).
     coarse_factor : int
         Downsampling of the coarse stage.
     coarse_threshold_sigma, coarse_threshold_min_dn : float
@@ -107,6 +113,7 @@ class FastParams:
     background: EigenBackgroundParams = field(default_factory=EigenBackgroundParams)
     outer_tube_radius_mm: float = 0.8
     inner_tube_radius_mm: float = 0.5
+    min_tube_width_px: float = 4.0
     coarse_factor: int = 4
     coarse_threshold_sigma: float = 6.0
     coarse_threshold_min_dn: float = 6.0
@@ -453,6 +460,8 @@ class FastReconstructor:
         for name in model.pair:
             if name not in frames or frames[name] is None:
                 raise FrameError("no frame", name)
+            vm = model.views[name]
+            check_tube_widths(name, (vm.outer_radius_px, vm.inner_radius_px), params.min_tube_width_px)
         for name in model.pair:
             stages = {}
             roi = self._roi.get(name)

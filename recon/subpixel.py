@@ -8,7 +8,10 @@ The tube is found coarsely, then measured finely only where it is:
    first pass calls foreground), and the coarse difference is thresholded
    against a per-pixel threshold learnt from the background frames (so the
    edges of static objects, which flicker with camera jitter, are not
-   foreground). The connected region at the robot's base is the robot; a
+   foreground); next to foreground pixels the mean *absolute* difference of
+   each block's central 2x2 pixels is thresholded too, so that the dark rims
+   and the bright highlight of a tube only a block or two wide, which cancel
+   in the average, do not break the robot's region. The connected region at the robot's base is the robot; a
    geodesic (breadth-first) walk from the base through it gives the ordered path
    to the farthest point, the tip.
 2. **Fine** (full resolution, ~1 % of the pixels): along the coarse path, at
@@ -26,7 +29,10 @@ The tube is found coarsely, then measured finely only where it is:
    distance, times the slant, is the tube's width.
 3. Centres are smoothed by a least-squares cubic B-spline (outliers, e.g.
    profiles through a specular highlight that reaches the rim, are rejected by
-   their residual and the spline refitted), and the tip is measured along the
+   their residual and the spline refitted; profiles much wider than their
+   neighbours, e.g. cut through the end cap, are dropped). Where the coarse path
+   stopped short of the tip, the tube is followed further at full resolution,
+   profile by profile (:func:`_follow_tube`). The tip is measured along the
    tube's axis on lines parallel to it, each against its own interior contrast.
 
 Pixel coordinates follow OpenCV: (0, 0) is the centre of the top-left pixel.
@@ -38,6 +44,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.ndimage import median_filter
 
 from .errors import FrameError
 
@@ -65,6 +72,7 @@ __all__ = [
     "ViewCenterline",
     "prepare_view",
     "coarse_path",
+    "coarse_abs_difference",
     "profile_edges",
     "edges_from_profiles",
     "fit_curve",
@@ -73,6 +81,11 @@ __all__ = [
 ]
 
 _BORDER_NAMES = ("left", "top", "right", "bottom")
+
+#: How far (coarse px) from a coarse pixel whose 2x2 average differs from the background the coarse stage
+#: also tests the 2x2 pixels' mean absolute difference (see coarse_path): bridges cancellations up to
+#: 2 * 2 coarse px (16 px) along a tube.
+_ABS_REACH = 2
 
 
 # ----------------------------------------------------------------------------- model
@@ -109,7 +122,13 @@ class ViewModel:
         Regressors there: mean, 1, x * mean, y * mean, -d mean/du, -d mean/dv.
     shift_gram : (6, 6) float64
     coarse_threshold : (Hc, Wc) float32
-        Foreground threshold per coarse pixel (gray levels).
+        Foreground threshold per coarse pixel (gray levels), learnt on
+        :func:`coarse_abs_difference` (never below the absolute value of the
+        2x2 average's difference, the other statistic it is applied to).
+    coarse_stack : (Hc, Wc, 4, k+1) float32
+        The rows of ``stack`` at the central 2x2 pixels of each coarse pixel's
+        block, contiguous (the coarse stage reads them for every pixel of its
+        region of interest).
     sigma_fine : float
         Noise of the fine background difference (gray levels).
     base_px, axis_px : (2,) arrays
@@ -145,6 +164,7 @@ class ViewModel:
     shift_index: np.ndarray = None
     shift_design: np.ndarray = None
     shift_gram: np.ndarray = None
+    coarse_stack: np.ndarray = None
 
     @property
     def coarse_shape(self) -> tuple:
@@ -163,6 +183,40 @@ def _downsample(img: np.ndarray, factor: int) -> np.ndarray:
     if factor == 1:
         return img
     return cv2.resize(img[: h * factor, : w * factor], (w, h), interpolation=cv2.INTER_LINEAR)
+
+
+def _central_offsets(factor: int) -> tuple[int, int]:
+    """Offsets (px) of the central 2x2 pixels of a ``factor`` block (one pixel, twice, for odd factors)."""
+    if factor % 2:
+        return (factor - 1) // 2, (factor - 1) // 2
+    return factor // 2 - 1, factor // 2
+
+
+def _central_pixels(H: int, W: int, factor: int) -> np.ndarray:
+    """(Hc, Wc, 4) flat indices of the central 2x2 pixels of each coarse pixel's block."""
+    lo, hi = _central_offsets(factor)
+    cy, cx = np.mgrid[0: H // factor, 0: W // factor]
+    return np.stack([(cy * factor + a) * W + cx * factor + b for a in (lo, hi) for b in (lo, hi)], axis=-1)
+
+
+def coarse_abs_difference(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, roi: tuple) -> np.ndarray:
+    """Mean absolute background difference of the central 2x2 pixels of each coarse pixel in ``roi`` (gray levels).
+
+    ``roi`` = ``(x0, y0, x1, y1)`` in coarse pixels; returns (y1-y0, x1-x0)
+    float32. The background is rebuilt at those pixels only
+    (``ViewModel.stack @ coeff``). Absolute values, not the difference of the
+    averages: a tube one or two blocks wide often has dark rims and a
+    highlight brighter than the backdrop, whose differences cancel in an
+    average (an inner tube of 4-6 px dropped out of the coarse mask for one
+    or a few coarse pixels, and the path stopped there, short of the tip).
+    """
+    f = model.factor
+    lo, hi = _central_offsets(f)
+    x0, y0, x1, y1 = (int(v) for v in roi)
+    # The four pixels in the order of ViewModel.coarse_stack's third axis.
+    px = np.stack([frame[y0 * f + a: y1 * f: f, x0 * f + b: x1 * f: f] for a in (lo, hi) for b in (lo, hi)], axis=-1)
+    bg = model.coarse_stack[y0:y1, x0:x1] @ coeff
+    return np.abs(px.astype(np.float32) - bg).mean(axis=-1)
 
 
 def _coarse_coefficients(model: ViewModel, r: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:
@@ -187,9 +241,11 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
 
     ``background_frames`` (N, H, W) set the noise levels: the coarse threshold
     of each pixel is ``max(threshold_min_dn, threshold_sigma * sigma,
-    jitter_margin * max |residual|)`` over the background frames, the maximum
-    taken over the pixel's 3x3 neighbourhood (the residual of a static edge
-    moves with the jitter).
+    jitter_margin * max residual)`` over the background frames, with sigma the
+    noise of a 2x2 mean and the residual the larger of the two statistics the
+    live frames are thresholded on (:func:`coarse_abs_difference`), the
+    maximum taken over the pixel's 3x3 neighbourhood (the residual of a static
+    edge moves with the jitter).
     """
     H, W = eigen.shape
     k = eigen.k
@@ -206,9 +262,7 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
     gy, gx = np.mgrid[step // 2:hc:step, step // 2:wc:step]
     gy, gx = gy.ravel(), gx.ravel()
     scoarse = gy * wc + gx
-    lo = (factor - 1) // 2 if factor % 2 else factor // 2 - 1
-    hi = (factor - 1) // 2 if factor % 2 else factor // 2
-    sidx = np.stack([(gy * factor + a) * W + gx * factor + b for a in (lo, hi) for b in (lo, hi)], axis=1)
+    sidx = _central_pixels(H, W, factor)[gy, gx]
     base_uv, _ = camera.project(np.asarray(base_world_mm, float)[None])
     tip_uv, _ = camera.project(np.asarray(base_world_mm, float)[None] + 5.0 * np.asarray(axis_world, float)[None])
     axis_px = tip_uv[0] - base_uv[0]
@@ -220,6 +274,7 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
         sample_index=sidx, sample_mean=coarse_mean[scoarse], sample_basis_t=np.ascontiguousarray(coarse_basis[:, scoarse].T.astype(np.float64)),
         sample_gram=coarse_basis[:, scoarse].astype(np.float64) @ coarse_basis[:, scoarse].T.astype(np.float64),
         sample_threshold=np.zeros(scoarse.size, np.float32), sample_prior=np.zeros(k), sigma_fine=1.0,
+        coarse_stack=np.ascontiguousarray(stack[_central_pixels(H, W, factor)]),
         base_px=base_uv[0], axis_px=axis_px, outer_radius_px=outer_radius_mm / mm_px,
         inner_radius_px=inner_radius_mm / mm_px, peak=float(eigen.mean.max()),
     )
@@ -245,9 +300,8 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
     maxabs = np.zeros((hc, wc), np.float32)
     for i in pick:
         f = frames[i]
-        coeff = frame_coefficients(model, f)
-        res = _downsample(f.astype(np.float32), factor).ravel() - coarse_mean - coeff[1:] @ coarse_basis
-        np.maximum(maxabs, np.abs(res).reshape(hc, wc), out=maxabs)
+        res = coarse_abs_difference(model, f, frame_coefficients(model, f), (0, 0, wc, hc))
+        np.maximum(maxabs, res, out=maxabs)
     thr = cv2.dilate(maxabs, np.ones((3, 3), np.uint8)) * np.float32(jitter_margin)
     thr = np.maximum(thr, np.float32(max(threshold_min_dn, threshold_sigma * sigma_c)))
     object.__setattr__(model, "coarse_threshold", thr.astype(np.float32))
@@ -472,8 +526,8 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
     Raises
     ------
     FrameError
-        All-black frame, no foreground, nothing at the base, or the robot's
-        region touching the image border (partly out of view).
+        All-black frame, no foreground, nothing at the base, or the far end
+        of the robot's path at the image border (partly out of view).
     """
     f = model.factor
     hc, wc = model.coarse_shape
@@ -490,23 +544,31 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
         rx1, ry1 = min(wc, max(int(roi[2]), bwin[2])), min(hc, max(int(roi[3]), bwin[3]))
     hr, wr = ry1 - ry0, rx1 - rx0
     k = model.coarse_basis.shape[0]
+    # Foreground: the 2x2 average's difference from the background over the threshold (cheap: coarse arrays),
+    # or, within _ABS_REACH coarse pixels of such a pixel, the 2x2 pixels' mean absolute difference (the
+    # background rebuilt at 4 pixels): across a tube a coarse pixel or two wide, its dark rims and a
+    # highlight brighter than the backdrop can cancel in the average over a few coarse pixels along it.
     if USE_NUMBA:
-        lo = (f - 1) // 2 if f % 2 else f // 2 - 1
-        hi = (f - 1) // 2 if f % 2 else f // 2
+        lo, hi = _central_offsets(f)
         mask, peak = coarse_foreground_nb(frame, f, lo, hi, rx0, ry0, rx1, ry1, model.coarse_mean.reshape(hc, wc),
-                                          model.coarse_basis.reshape(k, hc, wc), model.coarse_threshold, coeff.astype(np.float64))
+                                          model.coarse_basis.reshape(k, hc, wc), model.coarse_stack, model.coarse_threshold,
+                                          coeff.astype(np.float64), _ABS_REACH)
         found = peak > 0.0
     else:
-        fc = _downsample(frame[ry0 * f: ry1 * f, rx0 * f: rx1 * f], f)
-        basis = model.coarse_basis.reshape(k, hc, wc)[:, ry0:ry1, rx0:rx1].reshape(k, -1)
-        res = fc.astype(np.float32).reshape(-1)
-        res -= model.coarse_mean.reshape(hc, wc)[ry0:ry1, rx0:rx1].reshape(-1)
-        res -= coeff[1:] @ basis
-        thr = model.coarse_threshold[ry0:ry1, rx0:rx1].reshape(-1)
-        fg = np.abs(res) > thr
+        fc = _downsample(frame[ry0 * f: ry1 * f, rx0 * f: rx1 * f], f).astype(np.float32)
+        basis = model.coarse_basis.reshape(k, hc, wc)[:, ry0:ry1, rx0:rx1]
+        res = fc - model.coarse_mean.reshape(hc, wc)[ry0:ry1, rx0:rx1] - np.tensordot(coeff[1:], basis, axes=1)
+        thr = model.coarse_threshold[ry0:ry1, rx0:rx1]
+        excess = np.abs(res) - thr
+        fg = excess > 0
+        near = cv2.dilate(fg.view(np.uint8), np.ones((2 * _ABS_REACH + 1,) * 2, np.uint8)).view(bool) & ~fg
+        if near.any():
+            abs_excess = coarse_abs_difference(model, frame, coeff, (rx0, ry0, rx1, ry1)) - thr
+            fg |= near & (abs_excess > 0)
+            excess = np.where(near, np.maximum(excess, abs_excess), excess)
         found = bool(fg.any())
-        peak = float(np.max(np.abs(res) - thr)) if res.size else 0.0
-        mask = fg.reshape(hr, wr).view(np.uint8).copy()
+        peak = float(excess.max()) if excess.size else 0.0
+        mask = fg.view(np.uint8).copy()
     if not found:
         if roi is not None:
             return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)
@@ -536,10 +598,6 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
     if roi is not None and (sx == 0 and rx0 > 0 or sy == 0 and ry0 > 0 or sx + sw == wr and rx1 < wc or sy + sh == hr and ry1 < hc):
         return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)  # outgrew the ROI
     sx, sy = sx + rx0, sy + ry0
-    touched = [nm for nm, hit in zip(_BORDER_NAMES, (sx < border_margin_px, sy < border_margin_px,
-                                                      sx + sw > wc - border_margin_px, sy + sh > hc - border_margin_px)) if hit]
-    if touched:
-        raise FrameError(f"robot partly out of view (its silhouette reaches the {' and '.join(touched)} image border)", model.name)
     # The path is traced on the region pooled 2x2 (4x fewer graph nodes; the fine stage re-centres).
     x0p, y0p = sx - (sx & 1), sy - (sy & 1)
     x1p, y1p = min(wc, sx + sw + ((sx + sw) & 1)), min(hc, sy + sh + ((sy + sh) & 1))
@@ -552,8 +610,8 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
     else:
         pooled = region
     if pooled.size == 0 or not pooled.any():
-        pooled, g, x0p, y0p = region, 1, sx, sy  # degenerate (tiny) region: no pooling
-        pooled = (mask[sy - ry0:sy - ry0 + sh, sx - rx0:sx - rx0 + sw] == 2).view(np.uint8)
+        g, x0p, y0p = 1, sx, sy  # degenerate (tiny) region: no pooling
+        pooled = region = (mask[sy - ry0:sy - ry0 + sh, sx - rx0:sx - rx0 + sw] == 2).view(np.uint8)
     else:
         g = 2
     ry, rx = np.nonzero(pooled)
@@ -563,6 +621,17 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
         path = bfs_path_nb(np.ascontiguousarray(pooled, dtype=np.uint8), int(ry[k0]), int(rx[k0]))
     else:
         path = _geodesic_path(pooled.astype(bool), (int(ry[k0]), int(rx[k0])))
+    # Out of view when the far end of the path (the robot's visible end) is at the image border. Only the
+    # end counts: static edges flickering with camera jitter can join the region near the base and run to
+    # the border (the actuation unit's outline, when few background frames teach the threshold), which
+    # says nothing about the robot. (The fine stage checks again where it follows the tube past the path.)
+    ey, ex = int(path[-1, 0]) * g, int(path[-1, 1]) * g
+    cy, cx = np.nonzero(region[ey: ey + g, ex: ex + g])
+    cy, cx = cy + ey + y0p, cx + ex + x0p
+    touched = [nm for nm, hit in zip(_BORDER_NAMES, (cx.min() < border_margin_px, cy.min() < border_margin_px,
+                                                      cx.max() >= wc - border_margin_px, cy.max() >= hc - border_margin_px)) if hit]
+    if touched:
+        raise FrameError(f"robot partly out of view (its silhouette reaches the {' and '.join(touched)} image border)", model.name)
     path_px = ((path[:, ::-1].astype(np.float64) + 0.5) * g + [x0p, y0p]) * f - 0.5
     bbox = (sx * f, sy * f, (sx + sw) * f, (sy + sh) * f)
     return CoarseResult(coeff, path_px, bbox, area, (sx, sy, sx + sw, sy + sh))
@@ -957,12 +1026,102 @@ class _Fitter:
         return UniformSpline(self.s0, self.h, self.n_int, coef)
 
 
+def _fit_centres(s, c, ok, prof, params, wmin, wmax):
+    """Robust spline through the centres ``c`` (n, 2) over ``s``, and the tube width at each (px).
+
+    Returns ``(fitter, coef, ok, unit_tangents, width)``; ``ok`` loses the
+    outliers and the centres whose width is outside ``(wmin, wmax)``.
+    """
+    # One knot layout over all profiles: the design matrices are built once and every fit is a small solve.
+    fitter = _Fitter(s, params.spline_knot_px)
+    coef, ok = fitter.robust(c, ok, 4.0 * params.outlier_min_px, params.outlier_sigma)
+    # Width across the tube: the chord times the slant of the profile to the tube.
+    d = _unit_rows(fitter.derivatives(coef))
+    width = prof.chord * np.where(prof.axis == 1, np.abs(d[:, 1]), np.abs(d[:, 0]))
+    ok = ok & (width > wmin) & (width < wmax)
+    # A profile cut through the end cap at a slant, or reaching clutter beside the tube, reads wider than the
+    # tube around it, and its centre is off the axis: measured against the running median of the widths
+    # (9 profiles, ~18 px: a step from the outer to the inner tube is kept).
+    g = np.flatnonzero(ok)
+    if g.size >= 9:
+        ok[g[width[g] > 1.3 * median_filter(width[g], 9, mode="nearest")]] = False
+    return fitter, coef, ok, d, width
+
+
+def _end_of(fitter, coef, s, good, d, width):
+    """Curve parameter, position, unit tangent and half-width (px) of the tube at the last accepted centre."""
+    return (float(s[good[-1]]), fitter.values(coef)[good[-1]], d[good[-1]],
+            0.5 * float(np.median(width[good[-min(6, good.size):]])))
+
+
+def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step, tolerance, batch: int = 4):
+    """Profiles beyond ``p`` (px) along the tube, at full resolution, for as long as they find it.
+
+    Starting from a centre ``p`` with tangent ``t`` and curve parameter ``s``,
+    profiles are cut every ``step`` px along the predicted axis, ``batch`` at
+    a time; a profile finds the tube when its edges give a width in
+    ``(wmin, wmax)`` (px) and a centre within ``tolerance`` (px, e.g. the
+    thinner tube's radius) of the prediction, plus a quarter of its distance
+    ahead (the tangent at the start, e.g. at the step from the outer to a
+    bent inner tube, can be off by ~10 degrees). After each batch the axis is
+    re-predicted from the last centres found. Following stops at the first
+    two consecutive profiles that do not find the tube.
+
+    Returns
+    -------
+    Profiles or None
+        The profiles that found the tube (``ok`` all true), or None if none did.
+
+    Raises
+    ------
+    FrameError
+        The tube was still being followed when the profiles reached the image
+        border: the robot may continue out of view.
+    """
+    H, W = model.shape
+    k = step * np.arange(1, batch + 1, dtype=np.float64)
+    p, t = np.asarray(p, np.float64), _unit(np.asarray(t, np.float64))
+    recent = p[None]
+    found = []
+    for _ in range(int((H + W) / (step * batch)) + 1):
+        if len(recent) >= 3:
+            # Direction of the last centres (principal axis), oriented along the previous tangent.
+            ax = np.linalg.svd(recent - recent.mean(axis=0), full_matrices=False)[2][0]
+            t = _unit(ax if ax @ t > 0 else -ax)
+        seeds = p + k[:, None] * t
+        pr = edges_from_profiles(model, frame, coeff, seeds, np.broadcast_to(t, seeds.shape), s + k, half, threshold)
+        width = pr.chord * max(abs(t[0]), abs(t[1]))  # the slant, as in extract_view (profiles run across the larger component)
+        off = (pr.centers - seeds) @ np.array([-t[1], t[0]])
+        hit = pr.ok & (width > wmin) & (width < wmax) & (np.abs(off) < tolerance + 0.25 * k)
+        miss2 = ~hit[:-1] & ~hit[1:]
+        stop = int(np.argmax(miss2)) if miss2.any() else batch
+        u, v = np.rint(seeds[: stop + 2, 0]), np.rint(seeds[: stop + 2, 1])
+        out = [b for b, o in zip(_BORDER_NAMES, (u < half, v < half, u > W - 1 - half, v > H - 1 - half)) if o.any()]
+        if out:
+            raise FrameError(f"robot partly out of view (the tube runs to within {half} px of the {' and '.join(out)} image border)", model.name)
+        take = np.flatnonzero(hit[:stop])
+        if take.size == 0:
+            break
+        # Curve parameter as in _reparameterize: the seed's plus the centre's offset along the axis.
+        found.append(Profiles(centers=pr.centers[take], chord=pr.chord[take], axis=pr.axis[take],
+                              s=(s + k + (pr.centers - seeds) @ t)[take], ok=np.ones(take.size, bool)))
+        recent = np.concatenate([recent, pr.centers[take]])[-6:]
+        if stop < batch:
+            break
+        p = pr.centers[take[-1]]
+        s = float(found[-1].s[-1])
+    if not found:
+        return None
+    return Profiles(**{f: np.concatenate([getattr(q, f) for q in found]) for f in ("centers", "chord", "axis", "s", "ok")})
+
+
 def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings: dict | None = None) -> ViewCenterline:
     """Coarse path, fine profiles, spline, tip: the sub-pixel centerline of one view.
 
     ``params`` is a :class:`recon.fast.FastParams`; ``roi`` (coarse pixels)
     narrows the search for the robot (see :func:`coarse_path`). Stage times (ms) are
-    added to ``timings`` when given (``coarse``, ``profiles``, ``fit``, ``tip``).
+    added to ``timings`` when given (``coarse``, ``profiles``, ``fit``, ``follow``,
+    ``tip``).
 
     Raises
     ------
@@ -997,27 +1156,35 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
     ok &= (prof.chord > wmin) & (prof.chord < 1.45 * wmax)
     if ok.sum() < 8:
         raise FrameError(f"no tube edges found along the silhouette ({int(ok.sum())} of {len(ok)} profiles)", model.name)
-    # One knot layout over all profiles: the design matrices are built once and every fit is a small solve.
-    fitter = _Fitter(s, params.spline_knot_px)
-    coef, ok = fitter.robust(c, ok, 4.0 * params.outlier_min_px, params.outlier_sigma)
-    # Width across the tube: the chord times the slant of the profile to the tube.
-    d = _unit_rows(fitter.derivatives(coef))
-    width = prof.chord * np.where(prof.axis == 1, np.abs(d[:, 1]), np.abs(d[:, 0]))
-    ok &= (width > wmin) & (width < wmax)
+    fitter, coef, ok, d, width = _fit_centres(s, c, ok, prof, params, wmin, wmax)
     good = np.flatnonzero(ok)
     if good.size < 8:
         raise FrameError(f"too few valid tube profiles ({good.size} of {len(ok)})", model.name)
     lap("fit")
+    # The coarse path can stop short of the tip (a tube only a coarse pixel or two wide can drop out of the
+    # coarse mask): follow the tube's edges at full resolution beyond the last accepted centre. What that
+    # finds within a diameter and 2 px is the end cap, which the tip stage measures and the end-cap rule
+    # below drops anyway; only a longer stretch is added, and the centres refitted.
+    sb, p_end, t_end, r_end = _end_of(fitter, coef, s, good, d, width)
+    more = _follow_tube(model, frame, coeff, p_end, t_end, sb, int(np.ceil(rmax * 1.45 + 4)), thr, wmin, wmax,
+                        params.profile_step_px, model.inner_radius_px)
+    if more is not None and more.s[-1] > sb + 2.0 * r_end + 2.0:
+        order = np.argsort(np.concatenate([s, more.s]), kind="stable")
+        s = np.concatenate([s, more.s])[order]
+        c = np.concatenate([c, more.centers])[order]
+        ok = np.concatenate([ok, more.ok])[order]
+        prof.chord = np.concatenate([prof.chord, more.chord])[order]
+        prof.axis = np.concatenate([prof.axis, more.axis])[order]
+        fitter, coef, ok, d, width = _fit_centres(s, c, ok, prof, params, wmin, wmax)
+        good = np.flatnonzero(ok)
+        sb, p_end, t_end, r_end = _end_of(fitter, coef, s, good, d, width)
+    lap("follow")
     # Tip, along the axis from the last accepted centre.
-    sb = float(s[good[-1]])
-    p_end = fitter.values(coef)[good[-1]]
-    t_end = d[good[-1]]
-    r_end = 0.5 * float(np.median(width[good[-min(6, good.size):]]))
     end_t = _tip_along_axis(model, frame, coeff, p_end, t_end, r_end, thr)
+    lap("tip")
     if not np.isfinite(end_t):
         end_t = 0.0
     end_px = p_end + end_t * t_end
-    lap("tip")
     # Profiles within about a radius of the silhouette's end are cut by the end cap.
     ok &= s <= sb + end_t - 1.2 * r_end - 1.0
     if ok.sum() < 8:
