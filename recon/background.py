@@ -202,6 +202,7 @@ def difference_image(
     camera_name: str | None = None,
     *,
     black_fraction: float = 0.01,
+    ignore: np.ndarray | None = None,
 ) -> tuple[np.ndarray, float]:
     """Normalized absolute difference between a frame and its background.
 
@@ -225,6 +226,10 @@ def difference_image(
         A frame whose brightest pixel is at most this fraction of the mean
         background's brightest is rejected as all-black (lens cap, camera not
         delivering); 0.01 is ~2 gray levels for a scene peaking at 200.
+    ignore : array of int, optional
+        Flat pixel indices that cannot hold the robot (e.g. behind its base):
+        their difference is set to 0 before the maximum is taken, so clutter
+        there neither sets the normalization nor joins the silhouette.
 
     Returns
     -------
@@ -245,6 +250,8 @@ def difference_image(
     diff = _estimate(model, f)
     np.subtract(f, diff, out=diff)
     np.abs(diff, out=diff)
+    if ignore is not None:
+        diff[ignore] = 0.0
     peak = float(diff.max())
     if peak > 0.0:
         diff *= np.float32(1.0 / peak)

@@ -36,7 +36,8 @@ from .errors import FrameError
 from .rigcal import RigCalibration
 from .silhouette import BORDERS, SilhouetteParams, extract_silhouette
 
-__all__ = ["PaperParams", "PaperModel", "Reconstruction", "prepare_paper", "reconstruct_paper", "camera_order"]
+__all__ = ["PaperParams", "PaperModel", "Reconstruction", "prepare_paper", "reconstruct_paper", "camera_order",
+           "check_tube_widths", "behind_base_pixels"]
 
 
 @dataclass(frozen=True)
@@ -68,6 +69,22 @@ class PaperParams:
         either way). See :func:`recon.centerline.disk_radii`.
     inner_disk_margin_px : float
         The small disk's radius is the inner tube's half-width minus this (px).
+    min_tube_width_px : float
+        Every frame is refused (:class:`~recon.errors.FrameError`) when a
+        tube is narrower than this in a camera's image at the robot base
+        (px): below it the inner tube's centerline breaks up and the backbone
+        silently stops short of the tip (see docs/envelope.md, "Tube too thin
+        to resolve", for the measurement behind the default).
+    cut_behind_base : bool
+        Ignore the image behind the robot base (not in the paper): the
+        half-plane beyond the line through the projected base, across the
+        projected insertion axis, less the outer tube's radius and 2 px. The
+        actuation unit and pin vise sit there; camera jitter leaves their
+        edges in every difference image, and at a low threshold they join
+        the robot's silhouette through the pin vise and run it off the image
+        border. Assumes the robot never bends back behind its base plane.
+        Not applied in a camera that sees the insertion axis foreshortened to
+        less than a third.
     carving : CarvingParams
     backbone : BackboneParams
     """
@@ -81,6 +98,8 @@ class PaperParams:
     measure_width: bool = True
     outer_disk_position: float = CenterlineParams.outer_disk_position
     inner_disk_margin_px: float = CenterlineParams.inner_disk_margin_px
+    min_tube_width_px: float = 4.0
+    cut_behind_base: bool = True
     carving: CarvingParams = field(default_factory=CarvingParams)
     backbone: BackboneParams = field(default_factory=BackboneParams)
 
@@ -101,6 +120,9 @@ class PaperModel:
         Camera name -> :class:`~recon.centerline.CenterlineParams`.
     tube_radii_px : dict
         Camera name -> (outer, inner) tube radius (px) at the robot base.
+    behind_base : dict
+        Camera name -> flat indices of the pixels behind the robot base
+        (``cut_behind_base``), or None.
     silhouette : dict
         Camera name -> :class:`~recon.silhouette.SilhouetteParams`: the
         method's, with the border the robot base lies beyond (if it lies
@@ -113,6 +135,7 @@ class PaperModel:
     centerline: dict
     tube_radii_px: dict = field(default_factory=dict)
     silhouette: dict = field(default_factory=dict)
+    behind_base: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -195,7 +218,7 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
     names = camera_order(rig.names)
     if len(names) < 2:
         raise ValueError(f"the paper's method needs two cameras, the rig has {len(names)}")
-    backgrounds, centerline, radii, sil = {}, {}, {}, {}
+    backgrounds, centerline, radii, sil, cut = {}, {}, {}, {}, {}
     for name in names:
         cam = rig[name]
         if name not in background_frames:
@@ -224,9 +247,74 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
         radii[name] = (params.outer_tube_radius_mm / mmpp, params.inner_tube_radius_mm / mmpp)
         behind = [b for b in base_borders(cam, rig.base_point_world_mm) if b not in params.silhouette.allowed_borders]
         sil[name] = replace(params.silhouette, allowed_borders=params.silhouette.allowed_borders + tuple(behind))
+        cut[name] = (
+            behind_base_pixels(cam, rig.base_point_world_mm, rig.insertion_axis_world, radii[name][0] + 2.0)
+            if params.cut_behind_base
+            else None
+        )
     return PaperModel(
-        rig=rig, camera_names=names, backgrounds=backgrounds, centerline=centerline, tube_radii_px=radii, silhouette=sil
+        rig=rig, camera_names=names, backgrounds=backgrounds, centerline=centerline, tube_radii_px=radii, silhouette=sil,
+        behind_base=cut,
     )
+
+
+def behind_base_pixels(camera, base_point_world_mm, insertion_axis_world, margin_px: float):
+    """Flat indices of the pixels behind the robot base as ``camera`` sees it, or None.
+
+    The base plane (through the base, across the insertion axis) is seen as
+    the line through the projected base across the projected axis; pixels
+    farther than ``margin_px`` beyond it, on the side away from the robot, are
+    behind the base. None when the camera sees the axis foreshortened to less
+    than a third of its length (the plane is then not seen edge-on) or the
+    base is behind the camera.
+    """
+    base = np.asarray(base_point_world_mm, float).reshape(3)
+    axis = np.asarray(insertion_axis_world, float).reshape(3)
+    step_mm = 10.0
+    pc = camera.world_to_camera(np.stack([base, base + step_mm * axis]))
+    if not np.all(pc[:, 2] > 0):
+        return None
+    # Foreshortening: the axis' image length against that of a step across the line of sight.
+    uv = (camera.K[:2, :2] @ (pc[:, :2] / pc[:, 2:3]).T).T
+    d = uv[1] - uv[0]
+    full = float(np.sqrt(camera.K[0, 0] * camera.K[1, 1])) * step_mm / float(pc[0, 2])
+    if np.linalg.norm(d) < full / 3.0:
+        return None
+    # The line through the distorted projection of the base, across the axis' direction there.
+    (b_uv,), _ = camera.project(base[None])
+    n = d / np.linalg.norm(d)
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width]
+    along = (u - b_uv[0]) * n[0] + (v - b_uv[1]) * n[1]
+    idx = np.flatnonzero(along.ravel() < -float(margin_px))
+    return idx if idx.size else None
+
+
+def check_tube_widths(camera: str, tube_radii_px, min_width_px: float) -> None:
+    """Refuse a frame in which a tube is too thin for the method to resolve.
+
+    Parameters
+    ----------
+    camera : str
+        Camera name (prefixes the error).
+    tube_radii_px : sequence of float or None
+        Outer and inner tube radius in the camera's image at the robot base
+        (px), outermost first; None: nothing to check.
+    min_width_px : float
+        The method's ``min_tube_width_px``.
+
+    Raises
+    ------
+    FrameError
+        One line naming the camera, the tube, its width (px) and the limit.
+    """
+    if tube_radii_px is None:
+        return
+    # Tubes of a known size: a too-thin one cannot be told from the images apart from a retracted one
+    # (both end the silhouette at the outer tube), so the check is on the parameters, not on the frame.
+    for name, r in zip(("outer", "inner"), tube_radii_px):
+        if 2.0 * float(r) < min_width_px:
+            raise FrameError(f"{name} tube is {2.0 * float(r):.1f} px wide at the robot base, less than "
+                             f"min_tube_width_px = {min_width_px:g}: too thin to resolve", camera)
 
 
 def silhouette_bridge_check(cameras, silhouettes, voxel_size_mm):
@@ -309,8 +397,9 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
     Raises
     ------
     FrameError
-        With a one-line reason: a missing or malformed frame, no usable
-        silhouette, an empty centerline, views that do not agree.
+        With a one-line reason: a missing or malformed frame, a tube too thin
+        to resolve (``min_tube_width_px``), no usable silhouette, an empty
+        centerline, views that do not agree.
     """
     timings = {}
     t_start = t = time.perf_counter()
@@ -327,7 +416,8 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
     for name in names:
         if name not in frames or frames[name] is None:
             raise FrameError("no frame", name)
-        diff, peak = difference_image(model.backgrounds[name], frames[name], name)
+        check_tube_widths(name, model.tube_radii_px.get(name), params.min_tube_width_px)
+        diff, peak = difference_image(model.backgrounds[name], frames[name], name, ignore=model.behind_base.get(name))
         lap("background")
         silhouettes[name] = extract_silhouette(
             diff, model.silhouette.get(name, params.silhouette), name, max_difference=peak, tube_radii_px=model.tube_radii_px.get(name)
