@@ -121,3 +121,18 @@ def test_cli_bad_options_are_one_line_errors(tmp_path, capsys, argv, message):
     rc = main(["tune", str(SCENE), "--out", str(tmp_path / "t.toml"), "--cache", str(tmp_path), "--quiet", *argv])
     err = capsys.readouterr().err.strip()
     assert rc == 2 and len(err.splitlines()) == 1 and message in err, err
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "params").glob("*.toml")), ids=lambda p: p.name)
+def test_shipped_tuned_files_load_for_their_method(path):
+    from recon.methods import get_method
+    from recon.params import read_params_file
+
+    method = path.stem.split("-")[0]
+    params = load_params(get_method(method).params_type, path, method)
+    data = read_params_file(path, method)
+    assert data, path
+    # Only searched knobs are in the file, and each is inside its search range.
+    for k in KNOBS[method]:
+        v = knob_values(params, (k,))[0]
+        assert k.low <= v <= k.high, (path.name, k.path, v)
