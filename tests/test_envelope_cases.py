@@ -240,8 +240,8 @@ def test_backdrop_40_gray_levels_brighter_than_the_tubes_is_accurate(method, dat
         "length -40 mm, mean 8.4 mm, no FrameError"))),
     _fast(pytest.mark.xfail(strict=False, reason=(
         "measured: at backdrops 0.4-0.5 (median robot - backdrop -1 to +20 gray levels) the fast method loses the "
-        "distal 12-26 mm of the inner tube (mean 1.0-3.8 mm > 0.175 mm), no FrameError; accurate at 0.55 (-13) "
-        "and at 0.3-0.35 (+32 to +43)"))),
+        "distal 12-28 mm of the inner tube (mean 1.0-4.4 mm > 0.175 mm), no FrameError; accurate at 0.6 (-24) "
+        "and at 0.3-0.35 (+32 to +43), just outside at 0.55 (-13: mean 0.18 mm)"))),
 ])
 @settings(phases=NO_SHRINK, max_examples=EXAMPLES)
 @given(data=S.contrast_dicts(0.3, 0.55, seeds=PAPER_SEED))
