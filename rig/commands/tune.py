@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import math
+from dataclasses import asdict
 import time
 from pathlib import Path
 
@@ -80,12 +81,6 @@ def _table(title: str, default, tuned) -> str:
         lines.append(f"{'all':<34} {label:<8} {ev.failures:>3}/{ev.frames:<2} {_fmt(ev.mean_error_mm):>8} "
                      f"{_fmt(ev.tip_error_mm):>7} {_fmt(ev.max_error_mm):>7}   median {_fmt(ev.ms_median, 1)} ms/pair")
     return "\n".join(lines)
-
-
-def _evaluation_dict(ev) -> dict:
-    import dataclasses
-
-    return dataclasses.asdict(ev)
 
 
 def _run(args) -> int:
@@ -166,9 +161,9 @@ def _run(args) -> int:
                    "failure_penalty_mm": args.failure_penalty_mm, "tie_mm": args.tie_mm},
         "knobs": [{"path": k.path, "low": k.low, "high": k.high, "integer": k.integer, "unit": k.unit} for k in result.knobs],
         "default_params": params_to_dict(result.default_params), "tuned": tuned_dict(result),
-        "default": _evaluation_dict(result.default), "tuned_evaluation": _evaluation_dict(result.tuned),
-        "holdout_default": _evaluation_dict(held[0]) if held else None,
-        "holdout_tuned": _evaluation_dict(held[1]) if held else None,
+        "default": asdict(result.default), "tuned_evaluation": asdict(result.tuned),
+        "holdout_default": asdict(held[0]) if held else None,
+        "holdout_tuned": asdict(held[1]) if held else None,
     })
     print("\n" + "\n".join(changed))
     print(f"\nwrote {out} and {report}/ (history.csv: every evaluation, summary.json"
