@@ -303,7 +303,33 @@ def bench(scene, methods, cache_dir: Path, repeats: int, quiet: bool, factor: fl
     return results
 
 
+def _run_suite(args) -> int:
+    """``bench --suite NAME``: the generalization benchmark of :mod:`rig.widebench`."""
+    from rig import widebench
+
+    if args.scene is not None:
+        raise ValueError(f"--suite {args.suite} draws its own scenes: give either a SCENE or --suite, not both")
+    if args.n < 1:
+        raise ValueError(f"--n must be >= 1, got {args.n}")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be >= 0, got {args.seed}")
+    pin_one_core()
+    methods = [m.strip() for m in args.methods.split(",")] if args.methods else list(METHODS)
+    out = Path(args.out) if args.out else Path("out") / f"bench-{args.suite}-n{args.n}-seed{args.seed}"
+    report = widebench.run_suite(args.suite, args.n, args.seed, methods, out, Path(args.cache_dir),
+                                 selfcheck=not args.no_selfcheck, quiet=args.quiet)
+    if args.json:
+        print(widebench.dump(report))
+        return 0
+    print(widebench.format_suite(report))
+    widebench.print_worst(report)
+    print(f"\nper-frame rows: {out / 'frames.csv'}; summary: {out / 'summary.json'}; runs: {out / 'runs'}")
+    return 0
+
+
 def _run(args) -> int:
+    if args.suite:
+        return _run_suite(args)
     cpu = pin_one_core()
     scene = load_scene_from_args(args)
     methods = [m.strip() for m in args.methods.split(",")] if args.methods else list(METHODS)
@@ -368,4 +394,11 @@ def register(sub) -> None:
     p.add_argument("--scaling", action="store_true", help="also the resolution (0.5x, 1x, 2x) and voxel (50^3, 100^3, 200^3) study")
     p.add_argument("--scaling-frames", type=int, default=6, help="frames per scene in the scaling study (default 6)")
     p.add_argument("--json", action="store_true", help="print one JSON object keyed by method name")
+    p.add_argument("--suite", choices=["wide"], default=None,
+                   help="the generalization benchmark on a seeded set of generated scenes instead of one SCENE (docs/scenes.md)")
+    p.add_argument("--n", type=int, default=40, help="--suite: number of scenes (default 40)")
+    p.add_argument("--seed", type=int, default=1, help="--suite: seed of the scene draw (default 1, the reported set)")
+    p.add_argument("--out", default=None, help="--suite: where frames.csv, summary.json and the runs go "
+                   "(default out/bench-SUITE-nN-seedS)")
+    p.add_argument("--no-selfcheck", action="store_true", help="--suite: report frames as the methods return them, unchecked")
     p.set_defaults(func=_run)

@@ -1,0 +1,317 @@
+"""The generalization benchmark: every method on a fixed, seeded set of wide twin scenes.
+
+``ctr-bench bench --suite wide --n N --seed S`` draws ``N`` scenes from the wide
+distribution (:func:`twin.scenegen.generate_suite`: backdrops, rigs, robots,
+light, masks-only inputs), renders each once into a cache keyed by the scene's
+content, reconstructs every frame with every method through the same loop as
+``ctr-bench reconstruct`` (:func:`rig.reconstruct.reconstruct_session`, self-check
+included), and scores each frame against the twin's ground truth.
+
+Errors are given in mm and in *pixel footprints*: a frame's footprint is the
+mean, over both cameras and the true backbone's points, of the size of one pixel
+at that point's depth (mm). A frame is
+
+* ``ok``: reconstructed and passed the self-check;
+* ``flagged``: reconstructed but the self-check called it ``suspect``;
+* ``failed``: the method refused it (a one-line reason);
+* ``silent_wrong``: ``ok`` although its max error exceeds
+  :data:`SILENT_WRONG_PX` footprints: the count that must be 0;
+* ``good``: reconstructed with a max error within :data:`SILENT_WRONG_PX`
+  footprints (``good_flagged`` counts those the self-check flagged anyway).
+
+Error statistics are over the reconstructed frames (ok and flagged), whatever
+their status. Every frame's row goes to ``frames.csv`` in the output directory
+as it is scored, and the aggregates to ``summary.json``.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["SILENT_WRONG_PX", "CLASS_KEYS", "write_suite", "frame_footprint_mm", "score_run", "aggregate",
+           "run_suite", "format_suite", "JSON_KEYS"]
+
+#: A frame reported ok whose max error exceeds this many pixel footprints is a silent wrong shape.
+SILENT_WRONG_PX = 10.0
+
+#: Scene classes the tables are broken down by (keys of the generator's ``classes``).
+CLASS_KEYS = ("backdrop", "camera_angle", "resolution", "base", "tubes", "input")
+
+#: Keys of each method's entry in ``--json`` output (always present, None when undefined).
+JSON_KEYS = ("frames", "ok", "flagged", "failed", "silent_wrong", "good_flagged", "mean_error_px_median",
+             "tip_error_px_median", "ms_per_pair_median")
+
+_CSV_FIELDS = ("scene", "method", "frame", "status", "reason", *CLASS_KEYS, "footprint_mm", "mean_error_mm",
+               "max_error_mm", "tip_error_mm", "mean_error_px", "max_error_px", "tip_error_px", "ms",
+               "silent_wrong", "selfcheck_reason")
+
+
+# ----------------------------------------------------------------------------- scenes
+def write_suite(suite: str, n: int, seed: int, directory: Path) -> list:
+    """Write the suite's scene TOMLs into ``directory``; returns ``[(path, classes), ...]`` in draw order.
+
+    A file is rewritten only when its content changed, so render caches keyed by
+    the file's bytes stay valid across runs of the same suite.
+    """
+    import tomli_w
+
+    from twin.scenegen import generate_suite
+
+    directory.mkdir(parents=True, exist_ok=True)
+    out = []
+    for g in generate_suite(suite, n, seed):
+        path = directory / f"{g.name}.toml"
+        text = tomli_w.dumps(g.data)
+        if not path.exists() or path.read_text() != text:
+            tmp = path.with_name(f".{path.name}.tmp")
+            tmp.write_text(text)
+            tmp.replace(path)
+        out.append((path, {k: str(v) for k, v in g.classes.items()}))
+    return out
+
+
+def frame_footprint_mm(rig, backbone_world_mm) -> float:
+    """Mean pixel footprint (mm) over both cameras at the points of a backbone (world, mm)."""
+    pts = np.asarray(backbone_world_mm, float).reshape(-1, 3)
+    pts = pts[:: max(1, len(pts) // 50)]
+    sizes = []
+    for name in rig.names:
+        cam = rig[name]
+        z = cam.world_to_camera(pts)[:, 2]
+        sizes.append(z[z > 0] / np.sqrt(cam.K[0, 0] * cam.K[1, 1]))
+    sizes = np.concatenate(sizes)
+    return float(np.mean(sizes)) if sizes.size else float("nan")
+
+
+# ----------------------------------------------------------------------------- scoring
+def _selfcheck_reason(rec: dict):
+    sc = rec.get("selfcheck")
+    return sc.get("reason") if isinstance(sc, dict) else None
+
+
+def score_run(summary: dict, session, scene: str, method: str, classes: dict) -> list:
+    """One row per frame of a reconstruct summary, with errors in pixel footprints."""
+    rows = []
+    for rec in summary["per_frame"]:
+        truth = session.truth(rec["frame"])
+        px = frame_footprint_mm(session.rig, truth["backbone_world_mm"]) if truth is not None else float("nan")
+        row = {"scene": scene, "method": method, "frame": rec["frame"], "status": rec["status"],
+               "reason": rec.get("reason"), **{k: classes.get(k, "") for k in CLASS_KEYS}, "footprint_mm": px,
+               "ms": rec.get("ms"), "selfcheck_reason": _selfcheck_reason(rec)}
+        for key in ("mean_error_mm", "max_error_mm", "tip_error_mm"):
+            v = rec.get(key)
+            row[key] = v
+            row[key.replace("_mm", "_px")] = v / px if v is not None and np.isfinite(px) else None
+        row["silent_wrong"] = bool(rec["status"] == "ok" and row["max_error_px"] is not None
+                                   and row["max_error_px"] > SILENT_WRONG_PX)
+        rows.append(row)
+    return rows
+
+
+def _stat(rows, key, fn):
+    vals = np.array([r[key] for r in rows if r.get(key) is not None], float)
+    vals = vals[np.isfinite(vals)]
+    return float(fn(vals)) if vals.size else None
+
+
+def aggregate(rows: list) -> dict:
+    """Counts and error statistics of a set of frame rows (see the module doc)."""
+    done = [r for r in rows if r["status"] in ("ok", "suspect")]
+    good = [r for r in done if r.get("max_error_px") is not None and r["max_error_px"] <= SILENT_WRONG_PX]
+    return {
+        "frames": len(rows),
+        "ok": sum(r["status"] == "ok" for r in rows),
+        "flagged": sum(r["status"] == "suspect" for r in rows),
+        "failed": sum(r["status"] == "failed" for r in rows),
+        "silent_wrong": sum(bool(r["silent_wrong"]) for r in rows),
+        "good": len(good),
+        "good_flagged": sum(r["status"] == "suspect" for r in good),
+        "reconstructed_fraction": len(done) / len(rows) if rows else None,
+        "mean_error_px_median": _stat(done, "mean_error_px", np.median),
+        "mean_error_px_p95": _stat(done, "mean_error_px", lambda v: np.percentile(v, 95)),
+        "max_error_px_median": _stat(done, "max_error_px", np.median),
+        "tip_error_px_median": _stat(done, "tip_error_px", np.median),
+        "mean_error_mm_median": _stat(done, "mean_error_mm", np.median),
+        "max_error_mm_max": _stat(done, "max_error_mm", np.max),
+        "tip_error_mm_median": _stat(done, "tip_error_mm", np.median),
+        "ms_per_pair_median": _stat(done, "ms", np.median),
+    }
+
+
+def _by_class(rows: list) -> dict:
+    out = {}
+    for key in CLASS_KEYS:
+        values = sorted({r[key] for r in rows if r.get(key)})
+        out[key] = {v: aggregate([r for r in rows if r[key] == v]) for v in values}
+    return out
+
+
+# ----------------------------------------------------------------------------- the run
+def _register_peer(name: str) -> None:
+    """Make a peer (rig/peers.py) callable through reconstruct_session like any method."""
+    from dataclasses import dataclass
+
+    from recon.methods import METHODS, Method, register_method
+    from rig.peers import prepare_peer
+
+    if name in METHODS:
+        return
+
+    @dataclass(frozen=True)
+    class PeerParams:
+        """A peer runs with its own defaults."""
+
+    register_method(Method(name, PeerParams, lambda rig, bg, params: prepare_peer(name, rig, bg), f"peer {name}"))
+
+
+def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache_dir: Path, selfcheck=True,
+              quiet: bool = False) -> dict:
+    """Render (cached), reconstruct and score every scene of the suite with every method.
+
+    Parameters
+    ----------
+    suite, n, seed
+        What :func:`twin.scenegen.generate_suite` draws.
+    methods : list of str
+        Method names (``paper``, ``fast``) or peers (``icp-epipolar``); unavailable peers are skipped with the reason.
+    out_dir : Path
+        ``frames.csv``, ``summary.json`` and per-run reconstruct outputs (``runs/<method>/<scene>/``).
+    cache_dir : Path
+        Scene TOMLs and rendered sessions, reused across runs.
+    selfcheck : bool
+        Apply the self-check (False measures the methods as they would be reported without it).
+
+    Returns
+    -------
+    dict
+        ``{"suite", "n", "seed", "methods": {name: aggregate | {"skipped": why}}, "classes": {name: by class}}``.
+    """
+    from recon.selfcheck import SelfCheckParams
+    from rig.commands.bench import PEERS, cached_session, method_status
+    from rig.progress import Progress
+    from rig.reconstruct import reconstruct_session
+    from rig.session import Session
+    from twin.scene import load_scene
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    scenes = write_suite(suite, n, seed, cache_dir / f"{suite}-seed{seed}-scenes")
+    sessions = []
+    progress = Progress(enabled=not quiet)
+    for k, (path, classes) in enumerate(scenes):
+        sessions.append((path.stem, cached_session(load_scene(path), 1.0, cache_dir / "sessions"), classes))
+        progress("render", k + 1, len(scenes))
+    available = {}
+    for name in methods:
+        ok, why = method_status(name)
+        if ok and name in PEERS:
+            _register_peer(name)
+        available[name] = (ok, why)
+    rows, results = [], {}
+    csv_path = out_dir / "frames.csv"
+    with csv_path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=_CSV_FIELDS, extrasaction="ignore")
+        writer.writeheader()
+        for name in methods:
+            if not available[name][0]:
+                results[name] = {"skipped": available[name][1]}
+                continue
+            t0 = time.perf_counter()
+            for k, (scene, session_dir, classes) in enumerate(sessions):
+                run_dir = out_dir / "runs" / name / scene
+                try:
+                    summary = reconstruct_session(session_dir, run_dir, name,
+                                                  selfcheck=SelfCheckParams() if selfcheck else None)
+                except ValueError as exc:  # set-up refused for the whole scene: every frame failed
+                    summary = {"per_frame": [{"frame": f.index, "status": "failed", "reason": str(exc).splitlines()[0]}
+                                             for f in Session(session_dir).frames]}
+                new = score_run(summary, Session(session_dir), scene, name, classes)
+                for row in new:
+                    writer.writerow(row)
+                fh.flush()
+                rows.extend(new)
+                progress(name, k + 1, len(sessions))
+            results[name] = aggregate([r for r in rows if r["method"] == name])
+            results[name]["wall_s"] = time.perf_counter() - t0
+    progress.close()
+    report = {"suite": suite, "n": n, "seed": seed, "selfcheck": bool(selfcheck), "methods": results,
+              "classes": {m: _by_class([r for r in rows if r["method"] == m]) for m in results if "skipped" not in results[m]},
+              "worst": _worst(rows)}
+    from rig.reconstruct import write_json_atomic
+
+    write_json_atomic(out_dir / "summary.json", report)
+    return report
+
+
+def _worst(rows: list, k: int = 5) -> list:
+    """The reconstructed frames with the largest max error in footprints, per method."""
+    out = []
+    for m in sorted({r["method"] for r in rows}):
+        done = [r for r in rows if r["method"] == m and r.get("max_error_px") is not None]
+        done.sort(key=lambda r: -r["max_error_px"])
+        out += [{key: r[key] for key in ("method", "scene", "frame", "status", "max_error_px", "max_error_mm",
+                                         "mean_error_px", "selfcheck_reason")} for r in done[:k]]
+    return out
+
+
+# ----------------------------------------------------------------------------- tables
+def _f(v, w=7, p=2):
+    return f"{v:{w}.{p}f}" if isinstance(v, (int, float)) and v is not None and np.isfinite(v) else f"{'-':>{w}}"
+
+
+_HEAD = (f"{'':>22}  {'frames':>6}  {'ok':>4}  {'flag':>4}  {'fail':>4}  {'silent':>6}  {'goodflg':>7}  "
+         f"{'mean px':>7}  {'p95 px':>7}  {'tip px':>7}  {'mean mm':>7}  {'tip mm':>7}  {'ms':>7}")
+
+
+def _line(label: str, a: dict) -> str:
+    return (f"{label[:22]:>22}  {a['frames']:>6}  {a['ok']:>4}  {a['flagged']:>4}  {a['failed']:>4}  {a['silent_wrong']:>6}  "
+            f"{a['good_flagged']:>7}  {_f(a['mean_error_px_median'])}  {_f(a['mean_error_px_p95'])}  "
+            f"{_f(a['tip_error_px_median'])}  {_f(a['mean_error_mm_median'], p=3)}  {_f(a['tip_error_mm_median'], p=3)}  "
+            f"{_f(a['ms_per_pair_median'], p=1)}")
+
+
+def format_suite(report: dict) -> str:
+    """The printed tables: each method overall, then by scene class."""
+    lines = [f"suite {report['suite']}: {report['n']} scenes, seed {report['seed']}"
+             + ("" if report.get("selfcheck", True) else " (self-check off)")
+             + f"; errors over reconstructed frames, px = pixel footprints; silent = ok with max error > {SILENT_WRONG_PX:g} px"]
+    for name, a in report["methods"].items():
+        lines.append("")
+        if "skipped" in a:
+            lines.append(f"{name}: skipped: {a['skipped']}")
+            continue
+        lines.append(f"method {name}")
+        lines.append(_HEAD)
+        lines.append(_line("all", a))
+        for key, values in report["classes"][name].items():
+            for value, agg in values.items():
+                lines.append(_line(f"{key}={value}", agg))
+    return "\n".join(lines)
+
+
+def json_summary(report: dict) -> dict:
+    """``--json``: per method the keys of :data:`JSON_KEYS` (and the rest of its aggregate), plus its classes."""
+    out = {}
+    for name, a in report["methods"].items():
+        if "skipped" in a:
+            out[name] = a
+            continue
+        out[name] = {**{k: a.get(k) for k in JSON_KEYS}, **a, "classes": report["classes"][name]}
+    return out
+
+
+def print_worst(report: dict, file=sys.stdout) -> None:
+    """The worst frames of each method, for looking at their overlays."""
+    print("\nworst frames (max error in footprints):", file=file)
+    for w in report["worst"]:
+        print(f"  {w['method']:>6} {w['scene']} frame {w['frame']}: {w['status']}, max {_f(w['max_error_px'], p=1)} px "
+              f"({_f(w['max_error_mm'], p=2)} mm), mean {_f(w['mean_error_px'], p=2)} px"
+              + (f"; self-check: {w['selfcheck_reason']}" if w.get("selfcheck_reason") else ""), file=file)
+
+
+def dump(report: dict) -> str:
+    return json.dumps(json_summary(report), indent=2, default=float)
