@@ -15,7 +15,7 @@ from recon.camera import Camera, rotation_matrix
 
 from .scene import NoiseModel
 
-__all__ = ["frame_rng", "jitter_camera", "lighting_field", "expose"]
+__all__ = ["frame_rng", "jitter_camera", "lighting_field", "vignetting_field", "expose", "jpeg_roundtrip"]
 
 
 def frame_rng(seed: int, stream: str, frame: int, camera: str) -> np.random.Generator:
@@ -49,13 +49,40 @@ def jitter_camera(camera: Camera, noise: NoiseModel, rng: np.random.Generator) -
 def lighting_field(noise: NoiseModel, shape: tuple, t_frames: float, rng: np.random.Generator) -> tuple:
     """Gain image (H, W) and offset (DN) for this frame.
 
-    Gain = 1 + slow drift (sinusoid over ``lighting_period_frames``) + flicker + a linear
-    ramp in a random direction (the ``gradient`` amplitude at the image border).
+    Gain = (1 + slow drift (sinusoid over ``lighting_period_frames``) + flicker + a linear
+    ramp in a random direction (the ``gradient`` amplitude at the image border)) times
+    the static ``gain`` and the lens's vignetting.
     """
     h, w = shape
     gain = 1.0 + noise.lighting_drift * np.sin(2 * np.pi * t_frames / noise.lighting_period_frames)
     gain += rng.normal(0.0, noise.flicker) if noise.flicker else 0.0
     offset = rng.normal(0.0, noise.offset_dn) if noise.offset_dn else 0.0
+    if noise.gain != 1.0 or noise.vignetting > 0:
+        # Applied only when set, so scenes without these keys draw and compute exactly as before.
+        field, offset = _ramped(noise, (h, w), gain, offset, rng)
+        field *= np.float32(noise.gain)
+        if noise.vignetting > 0:
+            field *= vignetting_field((h, w), noise.vignetting)
+        return field, offset
+    return _ramped(noise, (h, w), gain, offset, rng)
+
+
+def vignetting_field(shape: tuple, amount: float) -> np.ndarray:
+    """Relative illumination (H, W) float32 of a lens: 1 at the centre, ``1 - amount`` at the corners.
+
+    Natural vignetting falls as cos^4 of the field angle; over a camera's field this
+    is close to a quadratic-quartic falloff in the radius normalised to the corner.
+    """
+    h, w = shape
+    y = (np.arange(h, dtype=np.float32) - (h - 1) / 2) / np.float32(max(h - 1, 1) / 2)
+    x = (np.arange(w, dtype=np.float32) - (w - 1) / 2) / np.float32(max(w - 1, 1) / 2)
+    r2 = (y[:, None] ** 2 * h * h + x[None, :] ** 2 * w * w) / np.float32(h * h + w * w)  # 1 at the corners
+    return (1.0 - np.float32(amount) * (0.6 * r2 + 0.4 * r2 * r2)).astype(np.float32)
+
+
+def _ramped(noise: NoiseModel, shape: tuple, gain: float, offset: float, rng: np.random.Generator) -> tuple:
+    """The gain field (uniform ``gain`` plus the per-frame ramp) and the offset (DN)."""
+    h, w = shape
     if noise.gradient:
         theta = rng.uniform(0, 2 * np.pi)
         amp = noise.gradient * rng.uniform(0.5, 1.0)
@@ -99,4 +126,17 @@ def expose(radiance: np.ndarray, noise: NoiseModel, t_frames: float, rng: np.ran
         var += np.float32(noise.read_noise_dn**2)
     if noise.photons_full_scale > 0 or noise.read_noise_dn > 0:
         img += np.sqrt(var) * rng.standard_normal(img.shape, dtype=np.float32)
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    if noise.jpeg_quality > 0:
+        out = jpeg_roundtrip(out, int(round(noise.jpeg_quality)))
+    return out
+
+
+def jpeg_roundtrip(image: np.ndarray, quality: int) -> np.ndarray:
+    """``image`` (uint8 mono or RGB) after JPEG compression at ``quality`` (1-100)."""
+    rgb = image.ndim == 3
+    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(image, cv2.COLOR_RGB2BGR) if rgb else image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:  # pragma: no cover - OpenCV encodes any 8-bit image
+        raise ValueError("could not JPEG-encode an image")
+    out = cv2.imdecode(buf, cv2.IMREAD_COLOR if rgb else cv2.IMREAD_GRAYSCALE)
+    return cv2.cvtColor(out, cv2.COLOR_BGR2RGB) if rgb else out

@@ -26,7 +26,9 @@ import trimesh  # noqa: E402
 from recon.camera import Camera  # noqa: E402
 
 from . import mesh as meshes  # noqa: E402
+from .backdrop import auto_texture_px, backdrop_planes, place_clutter  # noqa: E402
 from .scene import Scene  # noqa: E402
+from .textures import backdrop_texture  # noqa: E402
 
 __all__ = ["SetRenderer", "View", "OPENGL_FROM_OPENCV"]
 
@@ -82,26 +84,6 @@ def _release_renderers() -> None:
         except Exception:  # noqa: BLE001 - the process is exiting; nothing left to protect
             pass
     _RENDERERS.clear()
-
-
-def _texture(kind: str, c1, c2, seed: int, size: int = 256) -> np.ndarray:
-    """Backdrop texture (size, size, 3) uint8: plain, gradient or textured (seeded)."""
-    c1 = np.asarray(c1, float)
-    c2 = np.asarray(c2, float)
-    if kind == "plain":
-        img = np.broadcast_to(c1, (size, size, 3))
-    else:
-        t = np.linspace(0.0, 1.0, size)[:, None, None]
-        img = (1 - t) * c1 + t * c2
-        img = np.broadcast_to(img, (size, size, 3)).copy()
-        if kind == "textured":
-            rng = np.random.default_rng(seed)
-            noise = rng.normal(0.0, 1.0, (size, size)).astype(np.float32)
-            blotches = cv2.GaussianBlur(noise, (0, 0), 6.0)
-            blotches /= np.abs(blotches).max() + 1e-9
-            fine = cv2.GaussianBlur(noise, (0, 0), 0.8) * 0.15
-            img = img * (1.0 + 0.25 * blotches[..., None] + fine[..., None])
-    return (np.clip(img, 0, 1) * 255).astype(np.uint8)
 
 
 def _textured_plane(verts, faces, uv, normal, image: np.ndarray) -> pyrender.Mesh:
@@ -196,13 +178,14 @@ class SetRenderer:
     def _add_set(self, scene: Scene) -> None:
         d = scene.dressing
         rng_seed = scene.seed
-        tex = _texture(d.backdrop, d.backdrop_color, d.backdrop_color2, rng_seed)
         cx = float(np.mean([c.T_world_cam[0, 3] for c in scene.rig.cameras.values()]))
-        size = 600.0
-        floor = meshes.plane_mesh([cx, 0.0, d.floor_z_mm], [1, 0, 0], [0, 1, 0], size, size)
-        wall = meshes.plane_mesh([cx, d.wall_y_mm, 0.0], [1, 0, 0], [0, 0, 1], size, size)  # faces -y, the side camera
-        self.pr_scene.add(_textured_plane(*floor, tex))
-        self.pr_scene.add(_textured_plane(*wall, _texture(d.backdrop, d.backdrop_color, d.backdrop_color2, rng_seed + 1)))
+        tex_px = d.texture_px or auto_texture_px(self.width, self.height)
+        planes = backdrop_planes(scene, margin_px=self.margin + 4)
+        for i, plane in enumerate(planes):
+            # Plane i's texture is seeded with seed + i (the floor and the wall of the original set: seed, seed + 1).
+            tex = backdrop_texture(d.backdrop, d.backdrop_color, d.backdrop_color2, rng_seed + i, tex_px, d.pattern_scale, d.photo)
+            geom = meshes.plane_mesh(plane.center_mm, plane.u_axis, plane.v_axis, plane.size_u_mm, plane.size_v_mm)
+            self.pr_scene.add(_textured_plane(*geom, tex))
         T_base = scene.robot.T_world_base
         if d.actuation_unit:
             # The actuation unit sits behind the base along -insertion: a block carrying the
@@ -226,6 +209,10 @@ class SetRenderer:
             for x, y in ((cx - 50.0, 40.0), (cx - 50.0, -40.0)):
                 post = meshes.cylinder_mesh([x, y, d.floor_z_mm], [x, y, d.floor_z_mm + 22.0], 4.0)
                 self.pr_scene.add(_solid(post, (0.35, 0.36, 0.38), metallic=0.5, roughness=0.4, smooth=True))
+        # Clutter draws from its own stream, so adding it changes nothing else of the set.
+        clutter_rng = np.random.default_rng(np.random.SeedSequence([rng_seed, 0xC1077E5]))
+        for m, color, metallic, roughness in place_clutter(scene, planes, clutter_rng):
+            self.pr_scene.add(_solid(m, color, metallic=metallic, roughness=roughness))
         for light in d.lights:
             if light.kind == "directional":
                 z = -np.asarray(light.direction, float)

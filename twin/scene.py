@@ -8,7 +8,7 @@ got -1``.
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -134,6 +134,13 @@ class NoiseModel:
         Gaussian read noise (DN).
     blur_px : float
         Gaussian blur sigma (px); 0 disables it.
+    gain : float
+        Static exposure gain of the whole session (relative, 1 = as rendered).
+    vignetting : float
+        Relative darkening at the image corners (cos^4-like radial falloff); 0 disables it.
+    jpeg_quality : float
+        Store each image through JPEG at this quality (1-100), as compressed camera
+        streams do; 0 keeps lossless images.
     """
 
     lighting_drift: float = 0.0
@@ -146,6 +153,9 @@ class NoiseModel:
     photons_full_scale: float = 0.0
     read_noise_dn: float = 0.0
     blur_px: float = 0.0
+    gain: float = 1.0
+    vignetting: float = 0.0
+    jpeg_quality: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -161,7 +171,15 @@ class Light:
 
 @dataclass(frozen=True)
 class SetDressing:
-    """What surrounds the robot: backdrop, clutter and lights."""
+    """What surrounds the robot: backdrop, clutter and lights.
+
+    ``planes`` is ``"floor-wall"`` (a floor at ``floor_z_mm`` and a wall at
+    ``wall_y_mm``, 600 mm square, for the nominal orthogonal rig) or ``"per-camera"``
+    (one plane per camera, perpendicular to its line of sight ``behind_mm`` beyond the
+    target, sized to fill its whole view). ``texture_px`` 0 picks the texture size
+    from the image size; ``clutter`` is the number of seeded boxes and cylinders
+    placed on the backdrop planes, clear of the robot.
+    """
 
     backdrop: str = "gradient"
     backdrop_color: tuple = (0.80, 0.80, 0.78)
@@ -175,6 +193,12 @@ class SetDressing:
     robot_color: tuple = (0.78, 0.78, 0.80)
     robot_metallic: float = 0.6
     robot_roughness: float = 0.35
+    photo: str = "camera"
+    pattern_scale: float = 1.0
+    texture_px: int = 256
+    planes: str = "floor-wall"
+    behind_mm: float = 80.0
+    clutter: int = 0
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,6 +227,13 @@ class Scene:
         Background-only frames per camera (for the eigenbackground model).
     frame_interval_s : float
         Time between frames (s).
+    image_kind : str
+        ``"camera"`` (rendered camera images) or ``"masks"`` (binary silhouettes, as a
+        segmentation tool delivers them).
+    mask_polarity : str
+        ``"robot-white"`` (robot 255 on 0) or ``"robot-black"`` (robot 0 on 255).
+    classes : dict
+        Free-form class labels (str -> str) of the scene, e.g. from the scene generator.
     """
 
     name: str
@@ -217,6 +248,9 @@ class Scene:
     joints: list
     background_frames: int
     frame_interval_s: float
+    image_kind: str = "camera"
+    mask_polarity: str = "robot-white"
+    classes: dict = field(default_factory=dict)
 
     def with_frames(self, joints: list) -> "Scene":
         """The same scene with another joint sequence (e.g. a prefix for quick tests)."""
@@ -280,13 +314,31 @@ def _parse_robot(r: _Table, source: str) -> tuple:
     return Robot(tubes=tuple(tubes), T_world_base=_base_transform(position, ins, bend)), model, np.asarray(position), np.asarray(ins)
 
 
+#: Nominal line of sight (target -> camera, unit) and image-down direction of each camera (world).
+_NOMINAL_MOUNTS = {"side": ((0.0, -1.0, 0.0), (0.0, 0.0, -1.0)), "top": ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0))}
+
+
+def orbit_rotation(orbit_deg) -> np.ndarray:
+    """Rotation (3x3) of an orbit about the world x, then y, then z axis (deg), through the target."""
+    R = np.eye(3)
+    for ax, ang in zip(np.eye(3), orbit_deg):
+        R = rotation_matrix(ax, np.deg2rad(ang)) @ R
+    return R
+
+
+def _orbited_mount(name: str, target: np.ndarray, distance_mm: float, orbit_deg) -> tuple:
+    """Eye (world mm) and image-down direction of camera ``name`` orbited about the target."""
+    back, down = (np.asarray(v) for v in _NOMINAL_MOUNTS[name])
+    R = orbit_rotation(orbit_deg)
+    return target + distance_mm * (R @ back), R @ down
+
+
 def _parse_rig(g: _Table, width: int, height: int, base, axis) -> RigCalibration:
     distance = g.get("distance_mm", 300.0, float, *_POS)
     focal = g.get("focal_length_mm", 12.0, float, *_POS)
     pixel = g.get("pixel_size_um", 4.65, float, *_POS)
     target = np.asarray(g.get("target_mm", [45.0, 0.0, 0.0], ("vec", 3)))
     dist_default = g.get("distortion", [0.0] * 5, ("vec", 5))
-    f_px = focal / (pixel * 1e-3)
     # Nominal orthogonal mounts: the top camera looks down (-z) with image-down = world -y;
     # the side camera looks along +y with image-down = world -z (so world up is image up).
     nominal = {
@@ -296,12 +348,18 @@ def _parse_rig(g: _Table, width: int, height: int, base, axis) -> RigCalibration
     cams = {}
     for name, (eye, down) in nominal.items():
         c = g.table(name)
+        cam_distance = c.get("distance_mm", distance, float, *_POS)
+        orbit = c.get("orbit_deg", [0.0, 0.0, 0.0], ("vec", 3), lambda v: all(abs(a) <= 180 for a in v), "must be within [-180, 180] deg")
+        cam_focal = c.get("focal_length_mm", focal, float, *_POS)
+        if cam_distance != distance or any(orbit):
+            eye, down = _orbited_mount(name, target, cam_distance, orbit)
         rot = c.get("rotation_deg", [0.0, 0.0, 0.0], ("vec", 3))
         off = c.get("offset_mm", [0.0, 0.0, 0.0], ("vec", 3))
         pp = c.get("principal_offset_px", [0.0, 0.0], ("vec", 2))
         dist = c.get("distortion", dist_default, ("vec", 5))
         f_scale = c.get("focal_scale", 1.0, float, *_POS)
         c.done()
+        f_px = cam_focal / (pixel * 1e-3)
         T = look_at(eye, target, down)
         # Mount deviations are small rotations about the camera's own axes, then a shift (mm) in
         # the camera frame: T_cam'_world = D @ T_cam_world.
@@ -320,9 +378,11 @@ def _parse_rig(g: _Table, width: int, height: int, base, axis) -> RigCalibration
 
 
 def _parse_dressing(d: _Table, lights: list, ambient: float) -> SetDressing:
-    kinds = ("plain", "gradient", "textured")
+    from .textures import KINDS, LEGACY_KINDS, PHOTOS
+
+    kind = d.get("kind", "gradient", str, lambda v: v in KINDS, f"must be one of {', '.join(KINDS)}")
     dressing = SetDressing(
-        backdrop=d.get("kind", "gradient", str, lambda v: v in kinds, f"must be one of {', '.join(kinds)}"),
+        backdrop=kind,
         backdrop_color=tuple(d.get("color", [0.80, 0.80, 0.78], ("vec", 3))),
         backdrop_color2=tuple(d.get("color2", [0.55, 0.56, 0.60], ("vec", 3))),
         floor_z_mm=d.get("floor_z_mm", -60.0, float),
@@ -334,6 +394,15 @@ def _parse_dressing(d: _Table, lights: list, ambient: float) -> SetDressing:
         robot_color=tuple(d.get("robot_color", [0.78, 0.78, 0.80], ("vec", 3))),
         robot_metallic=d.get("robot_metallic", 0.6, float, lambda v: 0 <= v <= 1, "must be in [0, 1]"),
         robot_roughness=d.get("robot_roughness", 0.35, float, lambda v: 0 <= v <= 1, "must be in [0, 1]"),
+        photo=d.get("photo", "camera", str, lambda v: v in PHOTOS, f"must be one of {', '.join(PHOTOS)}"),
+        pattern_scale=d.get("pattern_scale", 1.0, float, lambda v: 0.1 <= v <= 10, "must be in [0.1, 10]"),
+        # The original kinds keep their 256-texel texture (existing scenes render as before);
+        # the new ones default to 0: sized from the image so they stay sharp.
+        texture_px=d.get("texture_px", 256 if kind in LEGACY_KINDS else 0, int, lambda v: v == 0 or 16 <= v <= 4096,
+                         "must be 0 (from the image size) or in [16, 4096]"),
+        planes=d.get("planes", "floor-wall", str, lambda v: v in ("floor-wall", "per-camera"), 'must be "floor-wall" or "per-camera"'),
+        behind_mm=d.get("behind_mm", 80.0, float, *_POS),
+        clutter=d.get("clutter", 0, int, lambda v: 0 <= v <= 50, "must be in [0, 50]"),
     )
     d.done()
     return dressing
@@ -362,6 +431,12 @@ def _parse_noise(n: _Table) -> NoiseModel:
         kw[key] = n.get(key, default, float, *_NONNEG)
     if kw["lighting_period_frames"] <= 0:
         n.fail("lighting_period_frames", f"must be > 0, got {kw['lighting_period_frames']}")
+    if kw["gain"] <= 0:
+        n.fail("gain", f"must be > 0, got {kw['gain']}")
+    if kw["vignetting"] >= 1:
+        n.fail("vignetting", f"must be < 1, got {kw['vignetting']}")
+    if kw["jpeg_quality"] > 100:
+        n.fail("jpeg_quality", f"must be in [0, 100] (0: no JPEG), got {kw['jpeg_quality']}")
     n.done()
     return NoiseModel(**kw)
 
@@ -393,6 +468,15 @@ def _parse_sequence(s: _Table, robot: Robot) -> tuple:
     return joints, bg, dt
 
 
+def _parse_classes(c: _Table) -> dict:
+    """Free-form class labels: every value must be a string."""
+    classes = {}
+    for key in sorted(c.data):
+        classes[key] = c.get(key, None, str)
+    c.done()
+    return classes
+
+
 def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     """Validate a parsed TOML document and build a :class:`Scene`."""
     top = _Table(data, "", source)
@@ -404,6 +488,11 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     width = image.get("width", 1024, int, lambda v: 16 <= v <= 8192, "must be in [16, 8192]")
     height = image.get("height", 768, int, lambda v: 16 <= v <= 8192, "must be in [16, 8192]")
     color = image.get("color", "mono", str, lambda v: v in ("mono", "rgb"), 'must be "mono" or "rgb"')
+    image_kind = image.get("kind", "camera", str, lambda v: v in ("camera", "masks"), 'must be "camera" or "masks"')
+    polarity = image.get("mask_polarity", "robot-white", str, lambda v: v in ("robot-white", "robot-black"),
+                         'must be "robot-white" or "robot-black"')
+    if image_kind == "masks" and color != "mono":
+        image.fail("color", 'must be "mono" when image.kind is "masks" (masks are single-channel)')
     image.done()
     robot, model, base, axis = _parse_robot(top.table("robot", required=True), source)
     rig = _parse_rig(top.table("rig"), width, height, base, axis)
@@ -414,6 +503,7 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     dressing = _parse_dressing(top.table("backdrop"), lights, ambient)
     noise = _parse_noise(top.table("noise"))
     joints, bg, dt = _parse_sequence(top.table("sequence", required=True), robot)
+    classes = _parse_classes(top.table("classes"))
     if not joints:
         raise SceneError(f"{source}: sequence.steps: at least one step with frames is required")
     top.done()
@@ -430,6 +520,9 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
         joints=joints,
         background_frames=bg,
         frame_interval_s=dt,
+        image_kind=image_kind,
+        mask_polarity=polarity,
+        classes=classes,
     )
 
 

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from .kinematics import solve
 from .mesh import tube_meshes
 from .noise import expose, frame_rng, jitter_camera
@@ -81,11 +83,28 @@ class Twin:
         images, used, views = {}, {}, {}
         for name, cam in sc.rig.cameras.items():
             cam_used = jitter_camera(cam, sc.noise, frame_rng(sc.seed, f"jitter-{stream}", index, name))
-            view = self.renderer.render(cam_used, with_truth=with_truth)
-            images[name] = expose(view.radiance, sc.noise, t_frames, frame_rng(sc.seed, f"expose-{stream}", index, name), sc.color)
+            if sc.image_kind == "masks":
+                images[name], views[name] = self._mask(cam_used, with_truth)
+            else:
+                view = self.renderer.render(cam_used, with_truth=with_truth)
+                images[name] = expose(view.radiance, sc.noise, t_frames, frame_rng(sc.seed, f"expose-{stream}", index, name), sc.color)
+                views[name] = view
             used[name] = cam_used
-            views[name] = view
         return images, used, views
+
+    def _mask(self, camera, with_truth: bool) -> tuple:
+        """A masks-only image: the label pass (a pixel is robot where a tube covers half of it), binarised.
+
+        Background frames of a masks session are uniform, as a segmentation tool's
+        output is where there is no robot; they need no rendering.
+        """
+        robot_value = 255 if self.scene.mask_polarity == "robot-white" else 0
+        shape = (camera.height, camera.width)
+        if not with_truth:
+            return np.full(shape, 255 - robot_value, np.uint8), None
+        view = self.renderer.render(camera, with_truth=True)
+        image = np.where(view.labels > 0, np.uint8(robot_value), np.uint8(255 - robot_value))
+        return image, view
 
     def background(self, index: int) -> TwinFrame:
         """Robot-free frame ``index`` of the background sequence."""

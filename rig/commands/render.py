@@ -43,6 +43,11 @@ def render_scene_to(scene, out: Path, quiet: bool = False) -> Path:
     from twin.record import render_session, robot_to_dict
 
     meta = {"scene": scene.source, "scene_name": scene.name, "robot": robot_to_dict(scene.robot, scene.model)}
+    if scene.classes:
+        meta["classes"] = dict(scene.classes)
+    if scene.image_kind != "camera":
+        meta["image_kind"] = scene.image_kind
+        meta["mask_polarity"] = scene.mask_polarity
     progress = Progress(enabled=not quiet)
     with SessionWriter(out, scene.rig, source="twin", n_tubes=scene.robot.n_tubes, meta=meta) as writer:
         render_session(scene, writer, progress=progress)
