@@ -1,0 +1,594 @@
+"""Method-independent self-check: does a reconstructed backbone explain the images?
+
+A reconstruction method can return a plausible-looking but wrong shape: a
+backbone that follows the tube half way and then runs straight to a wrong end,
+or one that stops far short of the tip. This module judges any backbone (any
+method, any peer) against the images alone, with its own foreground per view
+that shares nothing with the method's silhouette:
+
+* **Foreground.** Per view, the background frames are gain-normalized and
+  reduced to a per-pixel band ``[erode(min), dilate(max)]`` over a small
+  window (camera jitter of a pixel moves every texture edge), widened by
+  ``noise_sigmas`` of the background's noise and ``margin_dn`` gray levels.
+  A frame, gain-normalized against the background mean (lighting varies by
+  +-20 %), is foreground where it leaves that band.
+* **Reprojection.** The backbone is projected into each view
+  (:meth:`recon.camera.Camera.project`, with distortion) every ~1 px along
+  the curve, with the tube radius in pixels from the focal length and depth.
+* **Figures**, per view, on the in-image part only and in front of the robot
+  base: (a) ``unexplained_fraction``, the share of the foreground connected to
+  the reprojected tube that the tube (outermost radius plus a tolerance) does
+  not cover (a backbone cut short, or one that left the tube); (b)
+  ``off_foreground_fraction``, the share of centerline samples with no
+  foreground within a pixel or two (a backbone that left the tube); (c)
+  ``centerline_rms_px``, the RMS distance between the reprojected centerline
+  and the middle of the foreground cross-section across it (a backbone that
+  is offset in one view).
+
+Everything runs in a region of interest around the reprojection, grown only
+while the robot's foreground reaches its edge. Method and thresholds:
+``docs/selfcheck.md``.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from .paper import behind_base_pixels
+from .rigcal import RigCalibration
+
+__all__ = ["SelfCheckParams", "SelfCheckModel", "SelfCheck", "prepare_selfcheck", "check_backbone",
+           "foreground_roi", "fit_gain_offset"]
+
+
+@dataclass(frozen=True)
+class SelfCheckParams:
+    """Thresholds and tolerances of the self-check (defaults calibrated in docs/selfcheck.md).
+
+    Attributes
+    ----------
+    jitter_window_px : int
+        Half-size of the window over which the background's per-pixel minimum
+        is eroded and maximum dilated (px). Camera jitter of up to 1 px moves
+        every edge of a textured backdrop by that much; 1 covers it, since the
+        background frames' own jitter already widens the band.
+    noise_sigmas : float
+        How many standard deviations of the background's temporal noise (per
+        pixel, smoothed over 5x5 px) a pixel must lie beyond the band to be
+        foreground. 3: the min/max of as few as 6 frames spans only about
+        +-1.3 sigma, so 3 more keep false foreground below one pixel in ten
+        thousand.
+    margin_dn : float
+        Further gray levels beyond the band: covers what neither the noise nor
+        the gain model describes (quantization, a residual illumination ramp).
+        Also the whole margin on noise-free inputs (binary masks).
+    explain_tolerance_px : float
+        The reprojected tube explains foreground within its outermost radius
+        plus this (px): blur and anti-aliasing (about 1 px), calibration and
+        camera jitter (up to 1 px), and the methods' own sub-voxel error.
+    on_foreground_tolerance_px : float
+        A centerline sample is on foreground when foreground lies within this
+        distance (px): jitter plus rounding to the pixel grid.
+    sample_step_px : float
+        Spacing of the reprojected centerline samples (px).
+    profile_search_px : float
+        How far beyond the outermost radius the cross-section at a sample is
+        searched for the tube (px); offsets up to about radius + this are
+        measured, larger ones show as off-foreground samples.
+    max_unexplained_fraction : float
+        Limit of (a). A backbone 20 % short leaves about 20 % of the robot's
+        area (less where the thinner inner tube is missing) unexplained; good
+        frames stay below 5 % (shadow-free twin scenes) -- 0.10 between.
+    max_off_foreground_fraction : float
+        Limit of (b): a backbone that leaves the tube for a fifth of its
+        in-image length.
+    max_centerline_rms_px : float
+        Limit of (c) (px). Good reconstructions reproject within about 1 px
+        RMS; a backbone offset by 5 px in one view is far beyond 2.5.
+    min_visible_px : float
+        A view in which less than this length of the backbone (px) is in the
+        image, in front of the base, is not judged.
+    min_profile_fraction : float
+        (c) is measured only when at least this fraction of the samples (and
+        at least 10) have a clean cross-section (one run of foreground, no
+        wider than the tube, bounded on both sides).
+    roi_margin_px : int
+        Margin of the region of interest around the reprojected tube (px).
+    max_roi_growth : int
+        How many times the region of interest may grow (each time doubling
+        towards the sides where the robot's foreground reaches its edge).
+    """
+
+    jitter_window_px: int = 1
+    noise_sigmas: float = 3.0
+    margin_dn: float = 4.0
+    explain_tolerance_px: float = 3.0
+    on_foreground_tolerance_px: float = 1.5
+    sample_step_px: float = 1.0
+    profile_search_px: float = 6.0
+    max_unexplained_fraction: float = 0.10
+    max_off_foreground_fraction: float = 0.20
+    max_centerline_rms_px: float = 2.5
+    min_visible_px: float = 10.0
+    min_profile_fraction: float = 0.2
+    roi_margin_px: int = 16
+    max_roi_growth: int = 4
+
+    def __post_init__(self):
+        if int(self.jitter_window_px) != self.jitter_window_px or self.jitter_window_px < 0:
+            raise ValueError("SelfCheckParams: jitter_window_px must be an integer >= 0")
+        for name in ("noise_sigmas", "margin_dn", "explain_tolerance_px", "on_foreground_tolerance_px", "profile_search_px",
+                     "min_visible_px", "min_profile_fraction"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"SelfCheckParams: {name} must be >= 0")
+        for name in ("sample_step_px", "max_unexplained_fraction", "max_off_foreground_fraction", "max_centerline_rms_px"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"SelfCheckParams: {name} must be > 0")
+
+
+@dataclass(frozen=True, eq=False)
+class _ViewModel:
+    """Per camera: the background mean and the foreground band (gray levels, normalized)."""
+
+    mean: np.ndarray  # (H, W) float32, gain-normalized background mean
+    lo: np.ndarray  # (H, W) float32, below this is foreground
+    hi: np.ndarray  # (H, W) float32, above this is foreground
+    behind: np.ndarray | None  # (H, W) bool, behind the robot base (ignored), or None
+
+
+@dataclass(frozen=True, eq=False)
+class SelfCheckModel:
+    """What :func:`check_backbone` needs besides a frame: the rig and per-view background bands.
+
+    Attributes
+    ----------
+    rig : RigCalibration
+    views : dict
+        Camera name -> background mean and foreground band.
+    """
+
+    rig: RigCalibration
+    views: dict
+
+
+@dataclass(frozen=True)
+class SelfCheck:
+    """The verdict on one backbone.
+
+    Attributes
+    ----------
+    ok : bool
+        False when a judged view exceeds a limit, or no view sees the backbone.
+    reason : str or None
+        One line naming the camera and the figure furthest beyond its limit,
+        e.g. ``"top: 31 % of the reprojected tube is not on foreground (limit 20 %)"``.
+    figures : dict
+        Camera name -> ``{"unexplained_fraction", "off_foreground_fraction",
+        "centerline_rms_px", "visible_px"}`` (None where not measured: view not
+        judged, or no clean cross-section for the RMS).
+    ms : float
+        Wall time of the check (ms).
+    """
+
+    ok: bool
+    reason: str | None
+    figures: dict = field(default_factory=dict)
+    ms: float = 0.0
+
+    def to_dict(self) -> dict:
+        """JSON-ready (NaN as None, figures rounded)."""
+        def r(v):
+            return None if v is None or not math.isfinite(v) else round(float(v), 4)
+
+        return {"ok": bool(self.ok), "reason": self.reason, "ms": round(float(self.ms), 3),
+                "views": {c: {k: r(v) for k, v in f.items()} for c, f in self.figures.items()}}
+
+
+# ----------------------------------------------------------------------------- images
+#: Pixels sampled (on a regular grid) for a gain/offset fit: a few thousand pin both to
+#: well under 1 % and keep the fit's medians cheap.
+_GAIN_SAMPLES = 2000.0
+
+
+def _gray(image: np.ndarray, name: str) -> np.ndarray:
+    """(H, W) or (H, W, 3) uint8 -> (H, W) uint8; a one-line error otherwise."""
+    img = np.asarray(image)
+    if img.dtype != np.uint8:
+        raise ValueError(f"{name}: expected 8-bit images, got {img.dtype}")
+    if img.ndim == 3 and img.shape[2] == 3:
+        return cv2.cvtColor(np.ascontiguousarray(img), cv2.COLOR_RGB2GRAY)
+    if img.ndim != 2:
+        raise ValueError(f"{name}: expected an (H, W) or (H, W, 3) image, got shape {img.shape}")
+    return img
+
+
+def fit_gain_offset(image_dn: np.ndarray, background_dn: np.ndarray, iterations: int = 2) -> tuple:
+    """Robust ``image ~ gain * background + offset`` over sample pixels (gray levels).
+
+    Least squares, re-fitted on the samples within 3 robust sigmas (the robot
+    and its neighbourhood are a minority of the samples and drop out). Where
+    the background has no contrast to fit a gain against (a uniform backdrop,
+    binary masks), the gain stays 1 and only the offset (a median) is fitted.
+
+    Parameters
+    ----------
+    image_dn, background_dn : (n,) arrays
+        The frame's and the background mean's gray levels at the same pixels.
+
+    Returns
+    -------
+    gain, offset_dn : float
+    """
+    i = np.asarray(image_dn, np.float64).ravel()
+    b = np.asarray(background_dn, np.float64).ravel()
+    if i.size < 8:
+        return 1.0, 0.0
+    keep = np.ones(i.size, bool)
+    gain, offset = 1.0, float(np.median(i - b))
+    for _ in range(iterations):
+        ik, bk = i[keep], b[keep]
+        if ik.size < 8:
+            break
+        sb = float(np.std(bk))
+        if sb >= 2.0:
+            cov = float(np.mean((bk - bk.mean()) * (ik - ik.mean())))
+            g = cov / (sb * sb)
+            # A gain far from 1 means the fit is driven by something else than lighting.
+            gain = g if 0.3 < g < 3.0 else 1.0
+            offset = float(ik.mean() - gain * bk.mean()) if 0.3 < g < 3.0 else float(np.median(ik - bk))
+        else:
+            gain, offset = 1.0, float(np.median(ik - bk))
+        res = i - (gain * b + offset)
+        mad = float(np.median(np.abs(res[keep] - np.median(res[keep]))))
+        keep = np.abs(res) <= 3.0 * max(1.4826 * mad, 1.0) + 2.0
+    return float(gain), float(offset)
+
+
+def _normalized_stack(stack: np.ndarray) -> np.ndarray:
+    """Background frames (N, H, W) as float32, each gain-normalized to the stack's mean."""
+    f = stack.astype(np.float32)
+    mean = f.mean(axis=0)
+    step = max(1, int(math.sqrt(mean.size / _GAIN_SAMPLES)))
+    ms = mean[::step, ::step]
+    out = np.empty_like(f)
+    for k in range(f.shape[0]):
+        g, o = fit_gain_offset(f[k, ::step, ::step], ms)
+        out[k] = (f[k] - o) / g
+    return out
+
+
+def prepare_selfcheck(rig: RigCalibration, background_frames: dict, params: SelfCheckParams = SelfCheckParams()) -> SelfCheckModel:
+    """Build the per-view background bands from robot-free frames.
+
+    Parameters
+    ----------
+    rig : RigCalibration
+        Cameras (image sizes, poses) and robot base.
+    background_frames : dict
+        Camera name -> (N, H, W) or (N, H, W, 3) uint8 robot-free frames,
+        N >= 2. Binary masks (all-0 or all-255 frames) work: the band is then
+        the value itself plus ``margin_dn``.
+    params : SelfCheckParams
+
+    Returns
+    -------
+    SelfCheckModel
+
+    Raises
+    ------
+    ValueError
+        One line naming the camera: missing, wrong size, fewer than 2 frames.
+    """
+    views = {}
+    w = int(params.jitter_window_px)
+    kernel = np.ones((2 * w + 1, 2 * w + 1), np.uint8)
+    for name in rig.names:
+        cam = rig[name]
+        if name not in background_frames:
+            raise ValueError(f"{name}: no background frames")
+        stack = np.asarray(background_frames[name])
+        if stack.dtype != np.uint8:
+            raise ValueError(f"{name}: expected 8-bit background frames, got {stack.dtype}")
+        if stack.ndim == 4 and stack.shape[3] == 3:
+            stack = np.stack([_gray(s, name) for s in stack])
+        if stack.ndim != 3 or stack.shape[0] < 2:
+            raise ValueError(f"{name}: need at least 2 background frames as (N, H, W), got shape {stack.shape}")
+        if stack.shape[1:] != (cam.height, cam.width):
+            raise ValueError(f"{name}: background frames are {stack.shape[2]}x{stack.shape[1]} but the camera is {cam.width}x{cam.height}")
+        f = _normalized_stack(stack)
+        mean = f.mean(axis=0)
+        # Temporal noise, smoothed: 6 frames give a poor per-pixel estimate.
+        sigma = np.sqrt(cv2.blur(f.var(axis=0), (5, 5)))
+        margin = (params.noise_sigmas * sigma + params.margin_dn).astype(np.float32)
+        lo = cv2.erode(f.min(axis=0), kernel) - margin if w else f.min(axis=0) - margin
+        hi = cv2.dilate(f.max(axis=0), kernel) + margin if w else f.max(axis=0) + margin
+        idx = behind_base_pixels(cam, rig.base_point_world_mm, rig.insertion_axis_world, 0.0)
+        behind = None
+        if idx is not None:
+            behind = np.zeros(cam.height * cam.width, bool)
+            behind[idx] = True
+            behind = behind.reshape(cam.height, cam.width)
+        views[name] = _ViewModel(mean.astype(np.float32), lo.astype(np.float32), hi.astype(np.float32), behind)
+    return SelfCheckModel(rig, views)
+
+
+def foreground_roi(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.ndarray | None = None) -> np.ndarray:
+    """Foreground of a gray image in a region of interest, against the background band.
+
+    Parameters
+    ----------
+    view : the camera's background model
+    gray : (H, W) uint8
+        The frame, full size.
+    roi : (x0, y0, x1, y1)
+        Pixel bounds, x1 and y1 exclusive.
+    exclude : (h, w) bool, optional
+        Pixels of the region left out of the gain fit (where the robot is claimed to be).
+
+    Returns
+    -------
+    (h, w) bool
+        Foreground; False behind the robot base.
+    """
+    x0, y0, x1, y1 = roi
+    img = gray[y0:y1, x0:x1].astype(np.float32)
+    mean = view.mean[y0:y1, x0:x1]
+    h, w = img.shape
+    step = max(1, int(math.sqrt(h * w / _GAIN_SAMPLES)))
+    sel = np.ones((h, w), bool) if exclude is None else ~exclude
+    behind = None if view.behind is None else view.behind[y0:y1, x0:x1]
+    if behind is not None:
+        sel &= ~behind
+    sub = sel[::step, ::step]
+    gain, offset = fit_gain_offset(img[::step, ::step][sub], mean[::step, ::step][sub])
+    norm = (img - offset) / gain
+    fg = (norm < view.lo[y0:y1, x0:x1]) | (norm > view.hi[y0:y1, x0:x1])
+    if behind is not None:
+        fg &= ~behind
+    return fg
+
+
+# ----------------------------------------------------------------------------- reprojection
+def _dense_projection(camera, points_world_mm: np.ndarray, step_px: float) -> tuple:
+    """Backbone points subdivided so that consecutive projections are <= step_px apart.
+
+    Returns
+    -------
+    uv : (m, 2) pixels (NaN behind the camera); depth_mm : (m,)
+    """
+    uv, _ = camera.project(points_world_mm)
+    seg = np.linalg.norm(np.diff(uv, axis=0), axis=1)
+    seg = np.where(np.isfinite(seg), seg, 0.0)
+    n_sub = np.clip(np.ceil(seg / step_px).astype(int), 1, 10000)
+    i0 = np.append(np.repeat(np.arange(n_sub.size), n_sub), n_sub.size - 1)
+    start = np.repeat(np.cumsum(n_sub) - n_sub, n_sub)
+    t = np.append((np.arange(start.size) - start) / np.repeat(n_sub, n_sub), 1.0)
+    p = points_world_mm[i0] * (1.0 - t[:, None]) + points_world_mm[i0 + 1] * t[:, None]
+    return camera.project(p)
+
+
+def _normals(uv: np.ndarray) -> np.ndarray:
+    """Unit normals (m, 2) of a densely sampled image curve."""
+    d = np.gradient(uv, axis=0) if len(uv) > 1 else np.array([[1.0, 0.0]])
+    n = np.stack([-d[:, 1], d[:, 0]], axis=1)
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.where(norm > 1e-9, n / np.where(norm > 1e-9, norm, 1.0), np.array([0.0, 1.0]))
+
+
+def _near_foreground(fg: np.ndarray, uv: np.ndarray, tol_px: float) -> np.ndarray:
+    """(m,) bool: a foreground pixel lies within ``tol_px`` of each point (pixels of ``fg``)."""
+    r = int(math.floor(tol_px))
+    dv, du = np.mgrid[-r : r + 1, -r : r + 1]
+    keep = du**2 + dv**2 <= tol_px**2
+    du, dv = du[keep], dv[keep]
+    u = np.rint(uv[:, 0]).astype(np.int64)[:, None] + du[None, :]
+    v = np.rint(uv[:, 1]).astype(np.int64)[:, None] + dv[None, :]
+    h, w = fg.shape
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    hit = np.zeros(u.shape, bool)
+    hit[inside] = fg[v[inside], u[inside]]
+    return hit.any(axis=1)
+
+
+def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_out_px: np.ndarray, r_in_px: np.ndarray,
+                     params: SelfCheckParams) -> np.ndarray:
+    """Signed distance (px) from each sample to the middle of the foreground run across it; NaN where unclean.
+
+    The run is the one nearest the sample along the normal, within the
+    outermost radius plus ``profile_search_px``; it must be bounded by
+    background on both sides inside the region, no wider than the tube plus
+    the explain tolerance on each side, and at least 1.5 inner radii wide (a
+    run that covers only one side of the tube would bias the middle). Gaps up
+    to the outer radius inside a run are bridged first.
+    """
+    dt = 0.5
+    half = float(np.max(r_out_px)) + params.profile_search_px
+    t = np.arange(-half, half + 1e-9, dt)
+    K = t.size
+    pts = uv_roi[:, None, :] + t[None, :, None] * normals[:, None, :]
+    u = np.rint(pts[..., 0]).astype(np.int64)
+    v = np.rint(pts[..., 1]).astype(np.int64)
+    h, w = fg.shape
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    P = np.zeros(u.shape, bool)
+    P[inside] = fg[v[inside], u[inside]]
+    out = np.full(len(uv_roi), np.nan)
+    has = P.any(axis=1)
+    if not has.any():
+        return out
+    ar = np.arange(K)[None, :]
+    # Bridge gaps up to the outer radius: a metallic tube often has a stripe as bright as
+    # the backdrop along it, which splits its cross-section into two runs.
+    prev_fg = np.maximum.accumulate(np.where(P, ar, -1), axis=1)
+    next_fg = np.minimum.accumulate(np.where(P, ar, K)[:, ::-1], axis=1)[:, ::-1]
+    gap = (next_fg - prev_fg - 1) * dt
+    P = P | ((prev_fg >= 0) & (next_fg < K) & (gap <= r_out_px[:, None]))
+    j0 = np.argmin(np.where(P, np.abs(t)[None, :], np.inf), axis=1)
+    left_bg = np.maximum.accumulate(np.where(~P, ar, -1), axis=1)
+    right_bg = np.minimum.accumulate(np.where(~P, ar, K)[:, ::-1], axis=1)[:, ::-1]
+    rows = np.arange(len(uv_roi))
+    lb = left_bg[rows, j0]
+    rb = right_bg[rows, j0]
+    bounded = (lb >= 0) & (rb < K)
+    lb_c = np.clip(lb, 0, K - 1)
+    rb_c = np.clip(rb, 0, K - 1)
+    # A run that ends at the region's (or image's) edge has an unknown extent.
+    bounded &= inside[rows, lb_c] & inside[rows, rb_c]
+    width = (rb - lb - 1) * dt
+    good = has & bounded & (width <= 2.0 * (r_out_px + params.explain_tolerance_px)) & (width >= 1.5 * r_in_px)
+    mid = 0.5 * (t[np.clip(lb + 1, 0, K - 1)] + t[np.clip(rb - 1, 0, K - 1)])
+    out[good] = mid[good]
+    return out
+
+
+def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.ndarray, radii_mm: tuple,
+                params: SelfCheckParams) -> dict:
+    """The three figures of one view (None where not measured)."""
+    none = {"unexplained_fraction": None, "off_foreground_fraction": None, "centerline_rms_px": None, "visible_px": 0.0}
+    uv, depth = _dense_projection(camera, points_world_mm, params.sample_step_px)
+    finite = np.all(np.isfinite(uv), axis=1) & (depth > 1e-6)
+    vis = finite & camera.in_image(np.where(finite[:, None], uv, -1e9))
+    if view.behind is not None and vis.any():
+        iu = np.clip(np.rint(uv[vis, 0]).astype(int), 0, camera.width - 1)
+        iv = np.clip(np.rint(uv[vis, 1]).astype(int), 0, camera.height - 1)
+        vis[np.flatnonzero(vis)[view.behind[iv, iu]]] = False
+    n_vis = int(vis.sum())
+    none["visible_px"] = n_vis * params.sample_step_px
+    if n_vis * params.sample_step_px < params.min_visible_px:
+        return none
+    f_px = math.sqrt(camera.K[0, 0] * camera.K[1, 1])
+    r_out = f_px * radii_mm[0] / np.where(finite, depth, np.inf)
+    r_in = f_px * radii_mm[1] / np.where(finite, depth, np.inf)
+    r_band = float(np.max(r_out[vis])) + params.explain_tolerance_px
+    pad = int(math.ceil(r_band + params.profile_search_px)) + int(params.roi_margin_px)
+    W, H = camera.width, camera.height
+    uvv = uv[vis]
+    roi = [max(0, int(np.floor(uvv[:, 0].min())) - pad), max(0, int(np.floor(uvv[:, 1].min())) - pad),
+           min(W, int(np.ceil(uvv[:, 0].max())) + pad + 1), min(H, int(np.ceil(uvv[:, 1].max())) + pad + 1)]
+    thickness = 2 * int(math.ceil(r_band)) + 1
+    # The band's outline: every 4th dense sample is close enough to the curve for a thick line.
+    poly = uv[finite]
+    poly = np.concatenate([poly[:-1:4], poly[-1:]])
+    for _ in range(int(params.max_roi_growth) + 1):
+        x0, y0, x1, y1 = roi
+        band = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        # Sub-pixel polyline (4 fractional bits); the tube drawn with its outermost radius plus the tolerance.
+        pl = np.rint((poly - [x0, y0]) * 16).astype(np.int32)
+        cv2.polylines(band, [pl.reshape(-1, 1, 2)], False, 1, thickness=thickness, lineType=cv2.LINE_8, shift=4)
+        band = band.astype(bool)
+        fg = foreground_roi(view, gray, tuple(roi), exclude=band)
+        # Close 1-px cracks (specular highlights as bright as the backdrop) before measuring runs and regions.
+        fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
+        if view.behind is not None:
+            fg &= ~view.behind[y0:y1, x0:x1]
+        n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(fg.astype(np.uint8), connectivity=8)
+        touching = np.unique(labels[band & fg])
+        touching = touching[touching > 0]
+        grow = [False] * 4
+        for lab in touching:
+            lx, ly, lw, lh = stats[lab, :4]
+            grow[0] |= lx == 0 and x0 > 0
+            grow[1] |= ly == 0 and y0 > 0
+            grow[2] |= lx + lw == x1 - x0 and x1 < W
+            grow[3] |= ly + lh == y1 - y0 and y1 < H
+        if not any(grow):
+            break
+        # Robot foreground runs out of the region: double it towards those sides and look again.
+        dx, dy = x1 - x0, y1 - y0
+        roi = [max(0, x0 - dx) if grow[0] else x0, max(0, y0 - dy) if grow[1] else y0,
+               min(W, x1 + dx) if grow[2] else x1, min(H, y1 + dy) if grow[3] else y1]
+    x0, y0 = roi[0], roi[1]
+    is_robot = np.zeros(n_lab, bool)
+    is_robot[touching] = True
+    on_robot = is_robot[labels]
+    # (a) as tube length: unexplained area over the innermost tube's width (the
+    # thinnest reading, so a missing tip counts fully), against the length drawn.
+    unexplained_px = float((on_robot & ~band).sum()) / (2.0 * max(float(np.median(r_in[vis])), 0.5))
+    unexplained = unexplained_px / (unexplained_px + none["visible_px"])
+    # (b) is there foreground within the tolerance of each in-image sample?
+    uvr = uvv - [x0, y0]
+    off = float(np.mean(~_near_foreground(fg, uvr, params.on_foreground_tolerance_px)))
+    # (c) centerline offset across the tube, on every third sample (the RMS needs no more).
+    normals = _normals(uv[finite])[vis[finite]]
+    sub = slice(None, None, 3)
+    offs = _profile_offsets(fg, uvr[sub], normals[sub], r_out[vis][sub], r_in[vis][sub], params)
+    good = np.isfinite(offs)
+    enough = good.sum() >= max(10.0, params.min_profile_fraction * offs.size)
+    rms = float(np.sqrt(np.mean(offs[good] ** 2))) if enough else None
+    return {"unexplained_fraction": unexplained, "off_foreground_fraction": off, "centerline_rms_px": rms,
+            "visible_px": none["visible_px"]}
+
+
+def _verdict(figures: dict, params: SelfCheckParams) -> str | None:
+    """The reason of the figure furthest beyond its limit (one line), or None."""
+    worst, reason = 1.0, None
+    for cam, f in figures.items():
+        checks = (
+            ("off_foreground_fraction", params.max_off_foreground_fraction,
+             lambda x, lim: f"{cam}: {100 * x:.0f} % of the reprojected tube is not on foreground (limit {100 * lim:.0f} %)"),
+            ("unexplained_fraction", params.max_unexplained_fraction,
+             lambda x, lim: f"{cam}: {100 * x:.0f} % of the foreground along the robot is not explained by the backbone (limit {100 * lim:.0f} %)"),
+            ("centerline_rms_px", params.max_centerline_rms_px,
+             lambda x, lim: f"{cam}: the reprojected centerline is {x:.1f} px RMS off the tube's middle (limit {lim:.1f} px)"),
+        )
+        for key, lim, text in checks:
+            x = f.get(key)
+            if x is not None and x / lim > worst:
+                worst, reason = x / lim, text(x, lim)
+    return reason
+
+
+def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_radii_mm, params: SelfCheckParams = SelfCheckParams()) -> SelfCheck:
+    """Judge a backbone against the frame it was reconstructed from.
+
+    Parameters
+    ----------
+    model : SelfCheckModel
+        From :func:`prepare_selfcheck` on the same rig.
+    images : dict
+        Camera name -> (H, W) or (H, W, 3) uint8 frame.
+    points_world_mm : (n, 3) array
+        Backbone, base first (world, mm), n >= 2.
+    tube_radii_mm : (outermost, innermost)
+        Tube radii (mm): the band that explains foreground uses the outermost;
+        a cross-section must be at least the innermost radius wide.
+    params : SelfCheckParams
+
+    Returns
+    -------
+    SelfCheck
+
+    Raises
+    ------
+    ValueError
+        One line: a camera's image missing or of the wrong size, a backbone
+        that is not (n >= 2, 3) finite, radii that are not positive.
+    """
+    t0 = time.perf_counter()
+    pts = np.asarray(points_world_mm, np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 2 or not np.all(np.isfinite(pts)):
+        raise ValueError(f"self-check: the backbone must be (n >= 2, 3) finite points, got shape {pts.shape}")
+    try:
+        r_out, r_in = (float(r) for r in tube_radii_mm)
+    except (TypeError, ValueError):
+        raise ValueError("self-check: tube_radii_mm must be (outermost, innermost) in mm") from None
+    if not (r_out > 0 and r_in > 0):
+        raise ValueError(f"self-check: tube radii must be > 0 mm, got ({r_out}, {r_in})")
+    r_in = min(r_in, r_out)
+    figures = {}
+    for name, view in model.views.items():
+        cam = model.rig[name]
+        if name not in images:
+            raise ValueError(f"{name}: no image for the self-check")
+        gray = _gray(images[name], name)
+        if gray.shape != (cam.height, cam.width):
+            raise ValueError(f"{name}: image is {gray.shape[1]}x{gray.shape[0]} but the camera is {cam.width}x{cam.height}")
+        figures[name] = _judge_view(view, cam, gray, pts, (r_out, r_in), params)
+    reason = _verdict(figures, params)
+    if reason is None and not any(f["unexplained_fraction"] is not None for f in figures.values()):
+        reason = "the reprojected backbone is in no camera's image"
+    return SelfCheck(ok=reason is None, reason=reason, figures=figures, ms=1e3 * (time.perf_counter() - t0))

@@ -1,0 +1,219 @@
+"""The method-independent self-check (recon/selfcheck.py) and its use in reconstruct_session.
+
+One twin frame of the paper scene (inner tube 45 mm out) and six background frames are
+rendered once; every case judges a backbone built from the true one against them.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from recon.camera import Camera
+from recon.rigcal import RigCalibration
+from recon.selfcheck import SelfCheckParams, check_backbone, foreground_roi, prepare_selfcheck
+
+N_BACKGROUND = 6
+FRAME = 9  # inner tube 45 mm out of the outer one: both tubes well visible
+
+
+@pytest.fixture(scope="module")
+def rendered(paper_twin, paper_scene):
+    bgs = [paper_twin.background(i) for i in range(N_BACKGROUND)]
+    fr = paper_twin.frame(FRAME)
+    background = {c: np.stack([b.images[c] for b in bgs]) for c in paper_scene.rig.names}
+    tubes = paper_scene.robot.tubes
+    radii = (tubes[0].outer_diameter_mm / 2, tubes[-1].outer_diameter_mm / 2)
+    return SimpleNamespace(rig=paper_scene.rig, background=background, frame=fr, truth=fr.backbone.p_world_mm,
+                           s_mm=fr.backbone.s_mm, radii=radii)
+
+
+@pytest.fixture(scope="module")
+def model(rendered):
+    return prepare_selfcheck(rendered.rig, rendered.background)
+
+
+def _check(model, rendered, points, images=None):
+    return check_backbone(model, images if images is not None else rendered.frame.images, points, rendered.radii)
+
+
+def test_the_true_backbone_passes(model, rendered):
+    sc = _check(model, rendered, rendered.truth)
+    assert sc.ok, sc.reason
+    for cam, f in sc.figures.items():
+        assert f["unexplained_fraction"] < 0.03 and f["off_foreground_fraction"] < 0.03, (cam, f)
+        assert f["centerline_rms_px"] < 1.5, (cam, f)
+    assert 0 < sc.ms < 1000
+
+
+def test_a_backbone_cut_20_percent_short_is_flagged(model, rendered):
+    keep = rendered.s_mm <= 0.8 * rendered.s_mm[-1]
+    sc = _check(model, rendered, rendered.truth[keep])
+    assert not sc.ok
+    assert "not explained" in sc.reason, sc.reason
+
+
+def test_a_backbone_shifted_5_px_in_one_view_is_flagged(model, rendered):
+    side = rendered.rig["side"]
+    # Move along the side camera's image-down axis, 5 px at the robot's depth; the top camera sees this as depth.
+    down_world = side.T_world_cam[:3, 1]
+    mm = 5.0 * side.mm_per_pixel_at(rendered.truth[len(rendered.truth) // 2])
+    sc = _check(model, rendered, rendered.truth + mm * down_world)
+    assert not sc.ok
+    assert sc.reason.startswith("side:"), sc.reason
+    assert sc.figures["side"]["centerline_rms_px"] > 3.5
+    assert sc.figures["top"]["centerline_rms_px"] < 1.5
+
+
+def _wrong_end(truth):
+    """The first half of the truth, then straight to a point 25 mm off the true tip."""
+    n = len(truth)
+    half = truth[: n // 2]
+    end = truth[-1] + np.array([0.0, 25.0, -15.0])
+    t = np.linspace(0.0, 1.0, n - n // 2)[:, None]
+    return np.concatenate([half, half[-1] + t * (end - half[-1])])
+
+
+def test_a_backbone_that_leaves_the_tube_half_way_is_flagged(model, rendered):
+    sc = _check(model, rendered, _wrong_end(rendered.truth))
+    assert not sc.ok
+    assert max(f["off_foreground_fraction"] for f in sc.figures.values()) > 0.3
+    assert max(f["unexplained_fraction"] for f in sc.figures.values()) > 0.15
+
+
+def _masks(rendered, robot_value: int, background_value: int):
+    images = {c: np.where(lab > 0, robot_value, background_value).astype(np.uint8) for c, lab in rendered.frame.labels.items()}
+    bg = {c: np.full_like(s, background_value) for c, s in rendered.background.items()}
+    return images, bg
+
+
+@pytest.mark.parametrize("robot_value, background_value", [(255, 0), (0, 255)])
+def test_masks_only_pass_with_the_true_backbone_and_flag_a_wrong_one(rendered, robot_value, background_value):
+    images, bg = _masks(rendered, robot_value, background_value)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # zero noise, zero contrast: no division warnings either
+        model = prepare_selfcheck(rendered.rig, bg)
+        good = _check(model, rendered, rendered.truth, images)
+        bad = _check(model, rendered, _wrong_end(rendered.truth), images)
+    assert good.ok, good.reason
+    assert not bad.ok
+
+
+def test_rgb_frames_work_as_mono(model, rendered):
+    rgb = {c: np.repeat(img[..., None], 3, axis=2) for c, img in rendered.frame.images.items()}
+    assert _check(model, rendered, rendered.truth, rgb).ok
+
+
+def _cropped(camera: Camera, x0: int) -> Camera:
+    """The camera seeing only columns x0.. of its image (the principal point moves with the crop)."""
+    K = camera.K.copy()
+    K[0, 2] -= x0
+    return Camera(camera.name, camera.width - x0, camera.height, K, camera.dist, camera.T_cam_world)
+
+
+def test_a_robot_entering_from_the_image_border_passes(rendered):
+    # Crop the left of both images until the base (and the actuation unit) is out of view.
+    crops = {}
+    for c in rendered.rig.names:
+        (u_base, _), = rendered.rig[c].project(rendered.rig.base_point_world_mm[None])[0]
+        crops[c] = int(u_base) + 150
+    rig = RigCalibration({c: _cropped(rendered.rig[c], x0) for c, x0 in crops.items()},
+                         rendered.rig.base_point_world_mm, rendered.rig.insertion_axis_world)
+    bg = {c: np.ascontiguousarray(s[:, :, crops[c]:]) for c, s in rendered.background.items()}
+    images = {c: np.ascontiguousarray(img[:, crops[c]:]) for c, img in rendered.frame.images.items()}
+    model = prepare_selfcheck(rig, bg)
+    for c in rig.names:
+        (u_base, _), = rig[c].project(rig.base_point_world_mm[None])[0]
+        assert u_base < 0  # the base is outside the view
+    good = check_backbone(model, images, rendered.truth, rendered.radii)
+    assert good.ok, good.reason
+    keep = rendered.s_mm <= 0.8 * rendered.s_mm[-1]
+    assert not check_backbone(model, images, rendered.truth[keep], rendered.radii).ok
+
+
+def test_jitter_on_a_textured_backdrop_is_not_foreground():
+    """A backdrop with strong texture, shifted by up to 1 px and re-lit by +20 %: (almost) no foreground."""
+    import cv2
+
+    rng = np.random.default_rng(3)
+    h, w = 200, 300
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (h + 20, w + 20)).astype(np.float32), (0, 0), 2.0)
+    texture = (texture - texture.min()) / np.ptp(texture) * 200 + 20
+
+    def shot(dx, dy, gain=1.0):
+        M = np.float32([[1, 0, dx - 10], [0, 1, dy - 10]])
+        img = cv2.warpAffine(texture, M, (w, h), flags=cv2.INTER_LINEAR)
+        return np.clip(gain * img + rng.normal(0, 1.5, img.shape), 0, 255).astype(np.uint8)
+
+    cam = Camera("side", w, h, np.array([[500.0, 0, w / 2], [0, 500.0, h / 2], [0, 0, 1]]),
+                 T_cam_world=np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 300], [0, 0, 0, 1]]))
+    rig = RigCalibration({"side": cam}, base_point_world_mm=[0.0, 0.0, 0.0], insertion_axis_world=[0.0, 0.0, 1.0])
+    bg = {"side": np.stack([shot(*rng.uniform(-0.5, 0.5, 2)) for _ in range(N_BACKGROUND)])}
+    model = prepare_selfcheck(rig, bg)
+    frame = shot(1.0, -0.7, gain=1.2)
+    fg = foreground_roi(model.views["side"], frame, (0, 0, w, h))
+    assert fg.mean() < 0.002
+    # Without the jitter window the same shift makes texture edges foreground: the window is what helps.
+    fg0 = foreground_roi(prepare_selfcheck(rig, bg, SelfCheckParams(jitter_window_px=0)).views["side"], frame, (0, 0, w, h))
+    assert fg0.mean() > 5 * max(fg.mean(), 1e-4)
+
+
+def test_bad_input_is_a_one_line_error(model, rendered):
+    with pytest.raises(ValueError, match="top: image is 10x10"):
+        check_backbone(model, {**rendered.frame.images, "top": np.zeros((10, 10), np.uint8)}, rendered.truth, rendered.radii)
+    with pytest.raises(ValueError, match="backbone must be"):
+        check_backbone(model, rendered.frame.images, np.zeros((1, 3)), rendered.radii)
+    with pytest.raises(ValueError, match="side: no background frames"):
+        prepare_selfcheck(rendered.rig, {"top": rendered.background["top"]})
+
+
+# ----------------------------------------------------------------------------- end to end
+@dataclass(frozen=True)
+class _WrongParams:
+    outer_tube_radius_mm: float = 0.8
+    inner_tube_radius_mm: float = 0.5
+
+
+def test_reconstruct_session_marks_a_wrong_frame_suspect(rendered, tmp_path, monkeypatch):
+    from recon.methods import METHODS, Method
+    from rig.reconstruct import format_table, reconstruct_session
+    from rig.session import SessionWriter
+
+    session = tmp_path / "session"
+    with SessionWriter(session, rendered.rig, "twin", n_tubes=2) as w:
+        for i in range(N_BACKGROUND):
+            w.add_background(i, {c: rendered.background[c][i] for c in rendered.rig.names})
+        for i in range(2):
+            w.add_frame(i, rendered.frame.images, t_s=float(i), truth={"backbone_world_mm": rendered.truth})
+    answers = [rendered.truth, _wrong_end(rendered.truth)]  # frame 0 right, frame 1 wrong
+
+    def prepare(rig, background_frames, params):
+        calls = iter(answers)
+
+        def reconstruct(frames):
+            pts = next(calls)
+            return SimpleNamespace(points_world_mm=pts, tip_world_mm=pts[-1], length_mm=float("nan"),
+                                   transition_s_mm=float("nan"), timings_ms={"total": 1.0},
+                                   jump_flag=True, jump_reason="tip moved 40 mm")
+        return reconstruct
+
+    monkeypatch.setitem(METHODS, "wrong-half", Method("wrong-half", _WrongParams, prepare, "test: wrong second frame"))
+    summary = reconstruct_session(session, tmp_path / "out", method="wrong-half")
+    r0, r1 = summary["per_frame"]
+    assert r0["status"] == "ok" and r0["selfcheck"]["ok"], r0
+    assert r1["status"] == "suspect" and r1["reason"] == r1["selfcheck"]["reason"], r1
+    assert set(r1["selfcheck"]["views"]) == {"side", "top"}
+    assert r1["max_error_mm"] > 10.0  # suspect frames are still scored
+    assert summary["suspect_frames"] == 1 and summary["failed_frames"] == 0 and summary["ok_frames"] == 1
+    assert summary["scored_frames"] == 1 and summary["reconstructed"]["scored_frames"] == 2
+    assert summary["reconstructed"]["max_error_mm"] == pytest.approx(r1["max_error_mm"])
+    assert r1["jump_flag"] and r1["jump_reason"] == "tip moved 40 mm" and summary["jump_frames"] == 2
+    assert (tmp_path / "out" / "frames" / "000001.csv").exists()
+    assert f"suspect: {r1['reason']}" in format_table(summary)
+
+    # Without the self-check the same wrong frame is reported ok: what the benchmark's "before" measures.
+    off = reconstruct_session(session, tmp_path / "off", method="wrong-half", selfcheck=None)
+    assert [r["status"] for r in off["per_frame"]] == ["ok", "ok"] and "selfcheck" not in off["per_frame"][1]
