@@ -6,6 +6,12 @@ interrupted run keeps what it finished:
 * ``frames/NNNNNN.csv``: the backbone of each frame, ``x_mm,y_mm,z_mm``, base first;
 * ``backbones.npz``: all backbones (``frame_NNNNNN`` arrays) and the frame indices;
 * ``summary.json``: method, parameters, per-frame results and aggregates.
+
+Every reconstructed backbone is judged against its images by the
+method-independent self-check (:mod:`recon.selfcheck`, ``docs/selfcheck.md``):
+a frame whose backbone does not explain the images is ``suspect`` (not
+``ok``), with the reason; it is still written and scored, so that a benchmark
+can count silent wrong shapes (``ok`` frames with large errors).
 """
 from __future__ import annotations
 
@@ -20,10 +26,16 @@ from recon.errors import FrameError
 from recon.methods import get_method
 from recon.metrics import backbone_errors
 from recon.params import params_to_dict
+from recon.selfcheck import SelfCheckParams, check_backbone, prepare_selfcheck
 
 from .session import Session, SessionError
 
-__all__ = ["reconstruct_session", "write_json_atomic", "load_background_frames", "summarize", "format_table"]
+__all__ = ["reconstruct_session", "write_json_atomic", "load_background_frames", "summarize", "format_table",
+           "selfcheck_tube_radii_mm", "selfcheck_record"]
+
+#: Per-frame statuses: reconstructed and passed the self-check, reconstructed but the
+#: self-check doubts it, not reconstructed.
+STATUSES = ("ok", "suspect", "failed")
 
 
 def write_json_atomic(path: Path, data: dict) -> None:
@@ -88,17 +100,76 @@ def mm_per_pixel(session: Session) -> float:
     return float(np.mean([session.rig[c].mm_per_pixel_at(base) for c in session.cameras]))
 
 
-def summarize(records: list, method: str, params, session_dir, mm_px: float) -> dict:
-    """Aggregate per-frame records into the summary.json document."""
-    ok = [r for r in records if r["status"] == "ok"]
-    scored = [r for r in ok if r.get("mean_error_mm") is not None]
-    ms = np.array([r["ms"] for r in ok]) if ok else np.array([])
-    # Largest voxel edge of each frame (methods that carve voxels).
-    voxel = np.array([max(r["voxel_size_mm"]) for r in ok if r.get("voxel_size_mm")], float)
+def selfcheck_tube_radii_mm(session: Session, params):
+    """(outermost, innermost) tube radius (mm) the self-check draws the tube with.
+
+    The robot in session.json when it has one (it is the robot in the images),
+    else the method's ``outer_tube_radius_mm`` / ``inner_tube_radius_mm``;
+    None when neither says.
+    """
+    radii = session.robot_tube_radii_mm
+    if radii is not None:
+        return radii
+    if hasattr(params, "outer_tube_radius_mm") and hasattr(params, "inner_tube_radius_mm"):
+        return float(params.outer_tube_radius_mm), float(params.inner_tube_radius_mm)
+    return None
+
+
+def selfcheck_record(rec: dict, check_model, images: dict, pts: np.ndarray, radii_mm, params: SelfCheckParams) -> None:
+    """Judge a reconstructed backbone and record the verdict in its per-frame record.
+
+    Sets ``rec["selfcheck"]`` (``recon.selfcheck.SelfCheck.to_dict``) and, when
+    the check fails, ``status = "suspect"`` with the check's reason. A check
+    that cannot run makes the frame suspect too: an unverified shape must not
+    pass as ``ok``.
+    """
+    try:
+        sc = check_backbone(check_model, images, pts, radii_mm, params)
+    except Exception as exc:  # noqa: BLE001 - a crashing check must not cost the frame
+        if os.environ.get("CTR_BENCH_DEBUG") and not isinstance(exc, ValueError):
+            raise
+        rec["selfcheck"] = {"ok": False, "reason": f"self-check could not run: {_one_line(exc)}", "ms": None, "views": {}}
+        rec.update(status="suspect", reason=rec["selfcheck"]["reason"])
+        return
+    rec["selfcheck"] = sc.to_dict()
+    if not sc.ok:
+        rec.update(status="suspect", reason=sc.reason)
+
+
+def _error_aggregates(records: list) -> dict:
+    """Error aggregates (mm) over the scored frames among ``records``."""
+    scored = [r for r in records if r.get("mean_error_mm") is not None]
 
     def agg(key, fn):
         vals = np.array([r[key] for r in scored], float)
         return _finite(fn(vals)) if vals.size else None
+
+    return {
+        "scored_frames": len(scored),
+        "mean_error_mm": agg("mean_error_mm", np.mean),
+        "max_error_mm": agg("max_error_mm", np.max),
+        "tip_error_mm_median": agg("tip_error_mm", np.median),
+        "tip_error_mm_max": agg("tip_error_mm", np.max),
+        "length_error_mm_median": agg("length_error_mm", np.median),
+    }
+
+
+def summarize(records: list, method: str, params, session_dir, mm_px: float, selfcheck: SelfCheckParams | None = None) -> dict:
+    """Aggregate per-frame records into the summary.json document.
+
+    Error and time aggregates are over the ``ok`` frames (as before the
+    self-check existed); ``reconstructed`` holds the same over ``ok`` and
+    ``suspect`` frames together.
+    """
+    ok = [r for r in records if r["status"] == "ok"]
+    suspect = [r for r in records if r["status"] == "suspect"]
+    done = [r for r in records if r["status"] in ("ok", "suspect")]
+    errors = _error_aggregates(ok)
+    ms = np.array([r["ms"] for r in ok]) if ok else np.array([])
+    ms_done = np.array([r["ms"] for r in done]) if done else np.array([])
+    # Largest voxel edge of each frame (methods that carve voxels).
+    voxel = np.array([max(r["voxel_size_mm"]) for r in ok if r.get("voxel_size_mm")], float)
+    check_ms = np.array([r["selfcheck"]["ms"] for r in done if (r.get("selfcheck") or {}).get("ms") is not None], float)
 
     return {
         "format": "ctr-bench-summary",
@@ -107,14 +178,22 @@ def summarize(records: list, method: str, params, session_dir, mm_px: float) -> 
         "params": params_to_dict(params),
         "session": str(session_dir),
         "frames": len(records),
-        "failed_frames": len(records) - len(ok),
-        "scored_frames": len(scored),
+        "ok_frames": len(ok),
+        "suspect_frames": len(suspect),
+        "failed_frames": sum(r["status"] == "failed" for r in records),
+        "jump_frames": sum(bool(r.get("jump_flag")) for r in records),
+        "suspect_list": [r["frame"] for r in suspect],
         "mm_per_px": mm_px,
-        "mean_error_mm": agg("mean_error_mm", np.mean),
-        "max_error_mm": agg("max_error_mm", np.max),
-        "tip_error_mm_median": agg("tip_error_mm", np.median),
-        "tip_error_mm_max": agg("tip_error_mm", np.max),
-        "length_error_mm_median": agg("length_error_mm", np.median),
+        **errors,
+        "reconstructed": {
+            "frames": len(done),
+            **_error_aggregates(done),
+            "ms_per_pair_median": _finite(np.median(ms_done)) if ms_done.size else None,
+            "ms_per_pair_p95": _finite(np.percentile(ms_done, 95)) if ms_done.size else None,
+        },
+        "selfcheck": params_to_dict(selfcheck) if selfcheck is not None else None,
+        "selfcheck_ms_median": _finite(np.median(check_ms)) if check_ms.size else None,
+        "selfcheck_ms_max": _finite(np.max(check_ms)) if check_ms.size else None,
         "voxel_edge_mm_median": _finite(np.median(voxel)) if voxel.size else None,
         "voxel_edge_mm_max": _finite(np.max(voxel)) if voxel.size else None,
         "ms_per_pair_median": _finite(np.median(ms)) if ms.size else None,
@@ -123,7 +202,8 @@ def summarize(records: list, method: str, params, session_dir, mm_px: float) -> 
     }
 
 
-def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None, progress=None, frames=None) -> dict:
+def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None, progress=None, frames=None,
+                        selfcheck: SelfCheckParams | None = SelfCheckParams()) -> dict:
     """Reconstruct (and score, when the session has ground truth) every frame.
 
     Parameters
@@ -139,6 +219,10 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
     progress : callable(stage, done, total, **postfix), optional
     frames : iterable of int, optional
         Frame indices to do (default: all committed frames).
+    selfcheck : SelfCheckParams or None
+        Judge every reconstructed backbone against its images
+        (:mod:`recon.selfcheck`); a frame that fails is ``suspect``. None
+        disables it (to measure what a run reports without it).
 
     Returns
     -------
@@ -162,6 +246,16 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
         reconstruct = m.prepare(session.rig, backgrounds, params)
     except ValueError as exc:  # FrameError included
         raise SessionError(_background_error(session, exc)) from None
+    check_model = radii_mm = None
+    if selfcheck is not None:
+        radii_mm = selfcheck_tube_radii_mm(session, params)
+        if radii_mm is None:
+            raise SessionError(f"{session.dir / 'session.json'}: no robot tubes and method {method!r} has no tube radii: "
+                               "the self-check cannot draw the tube (reconstruct_session(selfcheck=None) skips it)")
+        try:
+            check_model = prepare_selfcheck(session.rig, backgrounds, selfcheck)
+        except ValueError as exc:
+            raise SessionError(_background_error(session, exc)) from None
     mm_px = mm_per_pixel(session)
     wanted = set(frames) if frames is not None else None
     todo = [f for f in session.frames if wanted is None or f.index in wanted]
@@ -188,6 +282,11 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
             rec.pop("ms", None)
             rec.update(status="failed", reason=_one_line(exc))
         if rec["status"] == "ok":
+            # The fast method's temporal check: recorded, the frame stays as the self-check judges it.
+            rec["jump_flag"] = bool(getattr(result, "jump_flag", False))
+            rec["jump_reason"] = getattr(result, "jump_reason", None) if rec["jump_flag"] else None
+            if check_model is not None:
+                selfcheck_record(rec, check_model, images, pts, radii_mm, selfcheck)
             backbones[fr.index] = pts
             np.savetxt(out / "frames" / f"{fr.index:06d}.csv", pts, delimiter=",", fmt="%.4f", header="x_mm,y_mm,z_mm", comments="")
             rec.update(
@@ -210,17 +309,17 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
             except Exception as exc:  # noqa: BLE001 - a bad truth file costs the score, not the frame
                 rec["note"] = f"not scored: {_one_line(exc)}"
         records.append(rec)
-        summary = summarize(records, method, params, session.dir, mm_px)
+        summary = summarize(records, method, params, session.dir, mm_px, selfcheck)
         write_json_atomic(out / "summary.json", summary)
         if progress:
-            post = {"ms": f"{rec['ms']:.0f}"} if rec["status"] == "ok" else {"failed": fr.index}
+            post = {"ms": f"{rec['ms']:.0f}"} if rec["status"] == "ok" else {rec["status"]: fr.index}
             progress("reconstruct", n + 1, len(todo), **post)
     np.savez_compressed(
         out / "backbones.npz",
         frames=np.array(sorted(backbones), dtype=np.int64),
         **{f"frame_{i:06d}": p for i, p in backbones.items()},
     )
-    summary = summarize(records, method, params, session.dir, mm_px)
+    summary = summarize(records, method, params, session.dir, mm_px, selfcheck)
     write_json_atomic(out / "summary.json", summary)
     return summary
 
@@ -234,13 +333,20 @@ def format_table(summary: dict) -> str:
         return f"{v:{w}.{p}f}" if v is not None else f"{'-':>{w}}"
 
     for r in summary["per_frame"]:
-        status = "ok" if r["status"] == "ok" else f"failed: {r['reason']}"
+        status = "ok" if r["status"] == "ok" else f"{r['status']}: {r['reason']}"
+        if r.get("jump_flag"):
+            status += f" (jump: {r.get('jump_reason')})"
         lines.append(
             f"{r['frame']:>5}  {f(r.get('tip_error_mm'))}  {f(r.get('mean_error_mm'))}  {f(r.get('max_error_mm'))}  {f(r.get('ms'), p=1)}  {status}"
         )
     s = summary
     lines.append("")
-    lines.append(f"method {s['method']}: {s['frames']} frames, {s['failed_frames']} failed; pixel footprint {px:.4f} mm")
+    counts = f"{s['frames']} frames, {s['failed_frames']} failed"
+    if s.get("suspect_frames") is not None:
+        counts += f", {s['suspect_frames']} suspect" if s.get("selfcheck") is not None else " (self-check off)"
+    if s.get("jump_frames"):
+        counts += f", {s['jump_frames']} with a temporal jump"
+    lines.append(f"method {s['method']}: {counts}; pixel footprint {px:.4f} mm")
     if s.get("mean_error_mm") is not None:
         lines.append(
             f"mean error {s['mean_error_mm']:.3f} mm ({s['mean_error_mm'] / px:.2f} px), "
@@ -253,6 +359,15 @@ def format_table(summary: dict) -> str:
             f"voxel edge (largest of the three) median {s['voxel_edge_mm_median']:.3f} mm, max {s['voxel_edge_mm_max']:.3f} mm"
             + (f"; mean error {s['mean_error_mm'] / s['voxel_edge_mm_median']:.2f} voxel" if s.get("mean_error_mm") is not None else "")
         )
+    rec = s.get("reconstructed") or {}
+    if s.get("suspect_frames") and rec.get("mean_error_mm") is not None:
+        lines.append(
+            f"with the {s['suspect_frames']} suspect frames: mean error {rec['mean_error_mm']:.3f} mm ({rec['mean_error_mm'] / px:.2f} px), "
+            f"max error {rec['max_error_mm']:.3f} mm ({rec['max_error_mm'] / px:.2f} px)"
+        )
     if s.get("ms_per_pair_median") is not None:
-        lines.append(f"time per pair: median {s['ms_per_pair_median']:.1f} ms, p95 {s['ms_per_pair_p95']:.1f} ms")
+        line = f"time per pair: median {s['ms_per_pair_median']:.1f} ms, p95 {s['ms_per_pair_p95']:.1f} ms"
+        if s.get("selfcheck_ms_median") is not None:
+            line += f"; self-check median {s['selfcheck_ms_median']:.1f} ms, max {s['selfcheck_ms_max']:.1f} ms"
+        lines.append(line)
     return "\n".join(lines)
