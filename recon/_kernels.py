@@ -16,10 +16,13 @@ __all__ = ["profile_edges_nb", "coarse_foreground_nb", "bfs_path_nb", "rays_nb"]
 
 
 @njit(cache=True, nogil=True)
-def profile_edges_nb(frame, stack, coeff, cu, cv, axis, half, threshold):
+def profile_edges_nb(frame, stack, coeff, cu, cv, axis, half, threshold, nav):
     """Cut the profiles and find their sub-pixel edges (see :func:`recon.subpixel.profile_edges`).
 
-    Returns ``e1, e2, ok`` (sample units from the window's first sample).
+    Profile ``i`` is the mean of ``2 nav[i] + 1`` parallel lines, offset by
+    ``-nav[i]..nav[i]`` px along the tube (rows for a row profile); lines outside
+    the image are left out. Returns ``e1, e2, ok`` (sample units from the
+    window's first sample).
     """
     H, W = frame.shape
     n = cu.shape[0]
@@ -30,18 +33,31 @@ def profile_edges_nb(frame, stack, coeff, cu, cv, axis, half, threshold):
     ok = np.zeros(n, np.bool_)
     d = np.empty(L)
     for i in range(n):
-        if axis[i]:
-            base = cv[i] * W + cu[i] - half
-            stride = 1
-        else:
-            base = (cv[i] - half) * W + cu[i]
-            stride = W
         for j in range(L):
-            p = base + j * stride
-            bg = 0.0
-            for c in range(k1):
-                bg += stack[p, c] * coeff[c]
-            d[j] = frame.flat[p] - bg
+            d[j] = 0.0
+        m = 0
+        for o in range(-nav[i], nav[i] + 1):
+            if axis[i]:
+                r = cv[i] + o
+                if r < 0 or r >= H:
+                    continue
+                base = r * W + cu[i] - half
+                stride = 1
+            else:
+                c0 = cu[i] + o
+                if c0 < 0 or c0 >= W:
+                    continue
+                base = (cv[i] - half) * W + c0
+                stride = W
+            m += 1
+            for j in range(L):
+                p = base + j * stride
+                bg = 0.0
+                for c in range(k1):
+                    bg += stack[p, c] * coeff[c]
+                d[j] += frame.flat[p] - bg
+        for j in range(L):
+            d[j] /= m
         i1 = -1
         i2 = -1
         for j in range(L):

@@ -83,10 +83,20 @@ class FastParams:
         Spacing of the measuring profiles across the tube along its path (px).
     edge_threshold_sigma, edge_min_dn : float
         A profile sample is tube when its difference exceeds this many sigmas
-        and gray levels.
+        (of the profile's noise: the pixel noise over the square root of the
+        lines averaged) and gray levels.
+    profile_half_lines : int
+        Each profile averages ``2 profile_half_lines + 1`` parallel lines along
+        the tube (fewer where the tube runs slanted to them), so that a tube
+        little brighter or darker than the backdrop still has edges.
     min_width_fraction, max_width_fraction : float
         Profiles narrower than this fraction of the inner tube's width, or
         wider than this fraction of the outer tube's, are rejected.
+    follow_gap_diameters : float
+        Following the tube past the coarse path bridges stretches without
+        edges (the tube in front of backdrop as bright as itself) up to this
+        many outer-tube diameters, if the tube is found again beyond them
+        (:func:`recon.subpixel._follow_tube`).
     outlier_sigma, outlier_min_px : float
         A centre farther than ``max(outlier_sigma * MAD, outlier_min_px)``
         from the spline is rejected.
@@ -122,9 +132,11 @@ class FastParams:
     sparse_step_px: float = 6.0
     profile_step_px: float = 2.0
     edge_threshold_sigma: float = 5.0
-    edge_min_dn: float = 12.0
-    min_width_fraction: float = 0.6
+    edge_min_dn: float = 8.0
+    profile_half_lines: int = 2
+    min_width_fraction: float = 0.4
     max_width_fraction: float = 1.3
+    follow_gap_diameters: float = 3.0
     outlier_sigma: float = 4.0
     outlier_min_px: float = 0.5
     spline_knot_px: float = 40.0

@@ -134,6 +134,14 @@ class ViewModel:
     base_px, axis_px : (2,) arrays
         The robot base projected into the image, and the unit image direction
         of the insertion axis there.
+    start_px : (2,) array or None
+        Where the robot is looked for first: the projected base when it lies
+        in the image, else where the projected insertion axis enters the
+        image (the robot comes in across the border); None: ``base_px``.
+    start_search_px : float
+        Extra search radius around ``start_px`` (px): a fifth of the distance
+        from the base to the entry point (a precurved tube can enter a little
+        off the axis), 0 when the base is in view.
     outer_radius_px, inner_radius_px : float
         Tube radii in the image at the base (px).
     peak : float
@@ -165,6 +173,8 @@ class ViewModel:
     shift_design: np.ndarray = None
     shift_gram: np.ndarray = None
     coarse_stack: np.ndarray = None
+    start_px: np.ndarray = None
+    start_search_px: float = 0.0
 
     @property
     def coarse_shape(self) -> tuple:
@@ -234,6 +244,27 @@ def _coarse_coefficients(model: ViewModel, r: np.ndarray, exclude: np.ndarray | 
         return np.linalg.lstsq(G, rhs, rcond=None)[0].astype(np.float32)
 
 
+def _entry_point(camera, base_world_mm, axis_world, H: int, W: int, margin: float = 2.0, reach_mm: float = 400.0):
+    """Where the robot is looked for: the projected base, or where the projected insertion axis enters the image.
+
+    Returns ``(start_px, extra_search_px)``; ``start_px`` is None when neither
+    the base nor any point of the axis within ``reach_mm`` projects into the
+    image.
+    """
+    base = np.asarray(base_world_mm, float)
+    axis = np.asarray(axis_world, float)
+    axis = axis / max(np.linalg.norm(axis), 1e-12)
+    t = np.arange(0.0, reach_mm, 0.25)
+    uv, z = camera.project(base[None] + t[:, None] * axis[None])
+    inside = (z > 0) & (uv[:, 0] >= margin) & (uv[:, 0] <= W - 1 - margin) & (uv[:, 1] >= margin) & (uv[:, 1] <= H - 1 - margin)
+    if inside[0]:
+        return uv[0].copy(), 0.0
+    if not inside.any():
+        return None, 0.0
+    k = int(np.argmax(inside))
+    return uv[k].copy(), 0.2 * float(np.hypot(*(uv[k] - uv[0]))) if z[0] > 0 else 0.0
+
+
 def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm, inner_radius_mm, background_frames,
                  factor: int = 4, threshold_sigma: float = 6.0, threshold_min_dn: float = 6.0,
                  jitter_margin: float = 1.5, n_samples: int = 2048) -> ViewModel:
@@ -268,6 +299,7 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
     axis_px = tip_uv[0] - base_uv[0]
     axis_px /= max(np.linalg.norm(axis_px), 1e-9)
     mm_px = camera.mm_per_pixel_at(base_world_mm)
+    start_px, start_search = _entry_point(camera, base_world_mm, axis_world, H, W)
     model = ViewModel(
         name=name, shape=(H, W), stack=stack, factor=factor, coarse_mean=coarse_mean, coarse_basis=coarse_basis,
         coarse_gram=gram, coarse_basis_t=np.ascontiguousarray(coarse_basis.T), coarse_threshold=np.zeros((hc, wc), np.float32),
@@ -277,6 +309,7 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
         coarse_stack=np.ascontiguousarray(stack[_central_pixels(H, W, factor)]),
         base_px=base_uv[0], axis_px=axis_px, outer_radius_px=outer_radius_mm / mm_px,
         inner_radius_px=inner_radius_mm / mm_px, peak=float(eigen.mean.max()),
+        start_px=start_px, start_search_px=start_search,
     )
     # Pixel noise from differences of consecutive background frames (robust; offsets removed).
     frames = np.asarray(background_frames)
@@ -532,11 +565,13 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
     f = model.factor
     hc, wc = model.coarse_shape
     coeff = frame_coefficients(model, frame)
-    bx, by = (model.base_px + 0.5) / f - 0.5
-    rad = max(2, int(np.ceil(base_search_px / f)))
-    bwin = (max(0, int(bx) - rad), max(0, int(by) - rad), min(wc, int(bx) + rad + 2), min(hc, int(by) + rad + 2))
+    start = model.base_px if model.start_px is None else model.start_px
+    bx, by = (start + 0.5) / f - 0.5
+    rad = max(2, int(np.ceil((base_search_px + min(model.start_search_px, 8.0 * base_search_px)) / f)))
+    ix, iy = int(np.floor(bx)), int(np.floor(by))
+    bwin = (max(0, ix - rad), max(0, iy - rad), min(wc, ix + rad + 2), min(hc, iy + rad + 2))
     if bwin[0] >= bwin[2] or bwin[1] >= bwin[3]:
-        raise FrameError("the robot's base projects outside the image (check the calibration)", model.name)
+        raise FrameError("neither the robot's base nor its insertion axis projects into the image (check the calibration)", model.name)
     if roi is None:
         rx0, ry0, rx1, ry1 = 0, 0, wc, hc
     else:
@@ -707,35 +742,57 @@ class Profiles:
     ok: np.ndarray  # (n,) bool
 
 
-def _gather_profiles(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, seeds: np.ndarray, tangents: np.ndarray, half: int):
+def _gather_profiles(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, seeds: np.ndarray, tangents: np.ndarray, half: int,
+                     nav: int = 0):
+    """Background differences on the profiles (n, 2 half + 1), each the mean of 2 nav + 1 parallel lines."""
     H, W = model.shape
     axis = np.abs(tangents[:, 1]) > np.abs(tangents[:, 0])  # True: tube runs vertically -> row profile
     cu = np.rint(seeds[:, 0]).astype(np.int64)
     cv = np.rint(seeds[:, 1]).astype(np.int64)
-    # Windows are kept inside the image; a profile whose window had to move is invalid.
-    cuc = np.clip(cu, half, W - 1 - half)
-    cvc = np.clip(cv, half, H - 1 - half)
+    # Windows are kept inside the image; a profile whose window had to move is invalid (only the profile's
+    # own direction needs the margin: a tube entering across the border is measured up to the border).
+    cuc = np.where(axis, np.clip(cu, half, W - 1 - half), np.clip(cu, 0, W - 1))
+    cvc = np.where(axis, np.clip(cv, 0, H - 1), np.clip(cv, half, H - 1 - half))
     full = (cuc == cu) & (cvc == cv)
     stride = np.where(axis, 1, W)
-    idx = (cvc * W + cuc)[:, None] + stride[:, None] * np.arange(-half, half + 1)
-    d = np.take(frame.reshape(-1), idx).astype(np.float32)
-    d -= (np.take(model.stack, idx.reshape(-1), axis=0) @ coeff).reshape(idx.shape)
-    return d, axis.astype(np.int8), cuc, cvc, full
+    acc = np.zeros((len(seeds), 2 * half + 1), np.float32)
+    cnt = np.zeros(len(seeds), np.float32)
+    nav = np.broadcast_to(np.asarray(nav, np.int64), (len(seeds),))
+    for o in range(-int(nav.max(initial=0)), int(nav.max(initial=0)) + 1):
+        ou, ov = np.where(axis, 0, o), np.where(axis, o, 0)
+        inside = (np.abs(o) <= nav) & (cuc + ou >= 0) & (cuc + ou < W) & (cvc + ov >= 0) & (cvc + ov < H)
+        idx = (np.clip(cvc + ov, 0, H - 1) * W + np.clip(cuc + ou, 0, W - 1))[:, None] + stride[:, None] * np.arange(-half, half + 1)
+        d = np.take(frame.reshape(-1), idx).astype(np.float32)
+        d -= (np.take(model.stack, idx.reshape(-1), axis=0) @ coeff).reshape(idx.shape)
+        acc += np.where(inside[:, None], d, 0.0)
+        cnt += inside
+    return acc / cnt[:, None], axis.astype(np.int8), cuc, cvc, full
 
 
-def edges_from_profiles(model: ViewModel, frame, coeff, seeds, tangents, s, half, threshold) -> Profiles:
-    """Cut profiles at ``seeds`` across ``tangents`` and locate the edges on them."""
+def edges_from_profiles(model: ViewModel, frame, coeff, seeds, tangents, s, half, threshold, nav: int = 0) -> Profiles:
+    """Cut profiles at ``seeds`` across ``tangents`` and locate the edges on them.
+
+    With ``nav`` > 0 each profile averages ``2 nav + 1`` parallel lines along
+    the tube (noise down by their square root; the edges of a slanted tube are
+    blurred symmetrically, so the summed coverage, hence the edge, is that
+    of the middle line); ``nav`` is lowered where the tube runs slanted to
+    the lines (their edges spread by at most ~2 px).
+    """
+    tangents = np.asarray(tangents, np.float64)
+    major = np.maximum(np.abs(tangents[:, 0]), np.abs(tangents[:, 1]))
+    minor = np.minimum(np.abs(tangents[:, 0]), np.abs(tangents[:, 1]))
+    nav = np.minimum(int(nav), np.floor(major / np.maximum(minor, 1e-6) + 1e-9)).astype(np.int64)
     if USE_NUMBA:
         H, W = model.shape
         axis = (np.abs(tangents[:, 1]) > np.abs(tangents[:, 0])).astype(np.int8)
         cu0 = np.rint(seeds[:, 0]).astype(np.int64)
         cv0 = np.rint(seeds[:, 1]).astype(np.int64)
-        cu = np.clip(cu0, half, W - 1 - half)
-        cv = np.clip(cv0, half, H - 1 - half)
-        e1, e2, ok = profile_edges_nb(frame, model.stack, coeff, cu, cv, axis, half, float(threshold))
+        cu = np.where(axis == 1, np.clip(cu0, half, W - 1 - half), np.clip(cu0, 0, W - 1))
+        cv = np.where(axis == 1, np.clip(cv0, 0, H - 1), np.clip(cv0, half, H - 1 - half))
+        e1, e2, ok = profile_edges_nb(frame, model.stack, coeff, cu, cv, axis, half, float(threshold), nav)
         ok &= (cu == cu0) & (cv == cv0)
     else:
-        d, axis, cu, cv, full = _gather_profiles(model, frame, coeff, seeds, tangents, half)
+        d, axis, cu, cv, full = _gather_profiles(model, frame, coeff, seeds, tangents, half, nav)
         e1, e2, ok = profile_edges(d, threshold)
         ok &= full
     mid = (e1 + e2) / 2.0 - half
@@ -1054,7 +1111,8 @@ def _end_of(fitter, coef, s, good, d, width):
             0.5 * float(np.median(width[good[-min(6, good.size):]])))
 
 
-def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step, tolerance, batch: int = 4):
+def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step, tolerance, batch: int = 4,
+                 max_gap_px: float = 0.0, confirm: int = 4, nav: int = 0):
     """Profiles beyond ``p`` (px) along the tube, at full resolution, for as long as they find it.
 
     Starting from a centre ``p`` with tangent ``t`` and curve parameter ``s``,
@@ -1062,10 +1120,17 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
     a time; a profile finds the tube when its edges give a width in
     ``(wmin, wmax)`` (px) and a centre within ``tolerance`` (px, e.g. the
     thinner tube's radius) of the prediction, plus a quarter of its distance
-    ahead (the tangent at the start, e.g. at the step from the outer to a
-    bent inner tube, can be off by ~10 degrees). After each batch the axis is
-    re-predicted from the last centres found. Following stops at the first
-    two consecutive profiles that do not find the tube.
+    ahead of the last centre found (the tangent at the start, e.g. at the
+    step from the outer to a bent inner tube, can be off by ~10 degrees).
+    After each batch the axis is re-predicted from the last centres found.
+
+    Where the tube crosses a stretch of backdrop as bright as itself its
+    edges vanish for a while: misses are bridged along the predicted axis for
+    up to ``max_gap_px`` (px), and what is found beyond such a gap counts only
+    once ``confirm`` consecutive profiles find a tube of the width found
+    before it (0.5-1.35 times: the step to the thinner tube may lie in the
+    gap). Following stops at the first longer run of misses (at least two
+    profiles).
 
     Returns
     -------
@@ -1082,37 +1147,76 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
     k = step * np.arange(1, batch + 1, dtype=np.float64)
     p, t = np.asarray(p, np.float64), _unit(np.asarray(t, np.float64))
     recent = p[None]
+    last_hit = p.copy()
+    widths = []
     found = []
+    pending = []  # hits after a gap, not yet confirmed: (center, chord, axis, s, width)
+    misses = 0
+    max_misses = max(2, int(np.floor(max_gap_px / step)) + 1)
     for _ in range(int((H + W) / (step * batch)) + 1):
         if len(recent) >= 3:
             # Direction of the last centres (principal axis), oriented along the previous tangent.
             ax = np.linalg.svd(recent - recent.mean(axis=0), full_matrices=False)[2][0]
             t = _unit(ax if ax @ t > 0 else -ax)
         seeds = p + k[:, None] * t
-        pr = edges_from_profiles(model, frame, coeff, seeds, np.broadcast_to(t, seeds.shape), s + k, half, threshold)
+        pr = edges_from_profiles(model, frame, coeff, seeds, np.broadcast_to(t, seeds.shape), s + k, half, threshold, nav)
         width = pr.chord * max(abs(t[0]), abs(t[1]))  # the slant, as in extract_view (profiles run across the larger component)
         off = (pr.centers - seeds) @ np.array([-t[1], t[0]])
-        hit = pr.ok & (width > wmin) & (width < wmax) & (np.abs(off) < tolerance + 0.25 * k)
-        miss2 = ~hit[:-1] & ~hit[1:]
-        stop = int(np.argmax(miss2)) if miss2.any() else batch
-        u, v = np.rint(seeds[: stop + 2, 0]), np.rint(seeds[: stop + 2, 1])
-        out = [b for b, o in zip(_BORDER_NAMES, (u < half, v < half, u > W - 1 - half, v > H - 1 - half)) if o.any()]
-        if out:
-            raise FrameError(f"robot partly out of view (the tube runs to within {half} px of the {' and '.join(out)} image border)", model.name)
-        take = np.flatnonzero(hit[:stop])
-        if take.size == 0:
+        ahead = (seeds - last_hit) @ t
+        hit = pr.ok & (width > wmin) & (width < wmax) & (np.abs(off) < tolerance + 0.25 * np.maximum(ahead, 0.0))
+        s_c = s + k + (pr.centers - seeds) @ t
+        stop = False
+        for i in range(batch):
+            u, v = seeds[i]
+            at_border = u < half or v < half or u > W - 1 - half or v > H - 1 - half
+            if at_border and (misses < 2 or pending):
+                out = [b for b, o in zip(_BORDER_NAMES, (u < half, v < half, u > W - 1 - half, v > H - 1 - half)) if o]
+                raise FrameError(f"robot partly out of view (the tube runs to within {half} px of the {' and '.join(out)} image border)", model.name)
+            if at_border:
+                stop = True
+                break
+            if hit[i] and misses >= 2 and widths:
+                wref = float(np.median(widths[-6:]))
+                if not 0.5 * wref < width[i] < 1.35 * wref:
+                    hit[i] = False
+            if hit[i]:
+                item = (pr.centers[i], pr.chord[i], pr.axis[i], s_c[i], width[i])
+                if misses >= 2 or pending:
+                    pending.append(item)
+                    if len(pending) >= confirm:
+                        found.extend(pending)
+                        pending = []
+                        misses = 0
+                else:
+                    found.append(item)
+                    misses = 0
+                if not pending:
+                    widths.append(float(width[i]))
+                    last_hit = pr.centers[i].copy()
+                    recent = np.concatenate([recent, pr.centers[i][None]])[-6:]
+            else:
+                if pending:
+                    misses += len(pending)
+                    pending = []
+                misses += 1
+                if misses >= max_misses:
+                    stop = True
+                    break
+        if stop:
             break
-        # Curve parameter as in _reparameterize: the seed's plus the centre's offset along the axis.
-        found.append(Profiles(centers=pr.centers[take], chord=pr.chord[take], axis=pr.axis[take],
-                              s=(s + k + (pr.centers - seeds) @ t)[take], ok=np.ones(take.size, bool)))
-        recent = np.concatenate([recent, pr.centers[take]])[-6:]
-        if stop < batch:
-            break
-        p = pr.centers[take[-1]]
-        s = float(found[-1].s[-1])
+        # Next batch from the last centre found, or along the prediction while bridging a gap.
+        if misses == 0 and found:
+            p = found[-1][0]
+            s = float(found[-1][3])
+        else:
+            p = seeds[-1]
+            s = float(s + k[-1])
     if not found:
         return None
-    return Profiles(**{f: np.concatenate([getattr(q, f) for q in found]) for f in ("centers", "chord", "axis", "s", "ok")})
+    # A run of misses at the end is no part of the tube.
+    return Profiles(centers=np.array([f[0] for f in found]), chord=np.array([f[1] for f in found]),
+                    axis=np.array([f[2] for f in found], np.int8), s=np.array([f[3] for f in found]),
+                    ok=np.ones(len(found), bool))
 
 
 def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings: dict | None = None) -> ViewCenterline:
@@ -1143,14 +1247,16 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
         raise FrameError(f"robot too short in the image (~{len(coarse.path_px) * 2 * f} px)", model.name)
     coeff = coarse.coefficients
     rmax = model.outer_radius_px * params.max_width_fraction
-    thr = max(params.edge_threshold_sigma * model.sigma_fine, params.edge_min_dn)
+    nav = int(getattr(params, "profile_half_lines", 0))
+    thr = max(params.edge_threshold_sigma * model.sigma_fine / np.sqrt(2 * nav + 1), params.edge_min_dn)
+    thr_px = max(params.edge_threshold_sigma * model.sigma_fine, params.edge_min_dn)  # one line, no averaging: the tip
     wmin = 2.0 * model.inner_radius_px * params.min_width_fraction
     wmax = 2.0 * rmax
     # Profiles along the coarse path, wide enough for its error (about a pooled cell).
     seeds, s = _resample(_smooth_path(coarse.path_px, 3), params.profile_step_px)
     tang = _tangents(seeds)
     half = int(np.ceil(rmax * 1.45 + 1.5 * f + 2))
-    prof = edges_from_profiles(model, frame, coeff, seeds, tang, s, half, thr)
+    prof = edges_from_profiles(model, frame, coeff, seeds, tang, s, half, thr, nav)
     lap("profiles")
     s, c, ok = _reparameterize(prof, seeds, tang)
     ok &= (prof.chord > wmin) & (prof.chord < 1.45 * wmax)
@@ -1167,7 +1273,8 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
     # below drops anyway; only a longer stretch is added, and the centres refitted.
     sb, p_end, t_end, r_end = _end_of(fitter, coef, s, good, d, width)
     more = _follow_tube(model, frame, coeff, p_end, t_end, sb, int(np.ceil(rmax * 1.45 + 4)), thr, wmin, wmax,
-                        params.profile_step_px, model.inner_radius_px)
+                        params.profile_step_px, model.inner_radius_px,
+                        max_gap_px=2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0), nav=nav)
     if more is not None and more.s[-1] > sb + 2.0 * r_end + 2.0:
         order = np.argsort(np.concatenate([s, more.s]), kind="stable")
         s = np.concatenate([s, more.s])[order]
@@ -1180,7 +1287,7 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
         sb, p_end, t_end, r_end = _end_of(fitter, coef, s, good, d, width)
     lap("follow")
     # Tip, along the axis from the last accepted centre.
-    end_t = _tip_along_axis(model, frame, coeff, p_end, t_end, r_end, thr)
+    end_t = _tip_along_axis(model, frame, coeff, p_end, t_end, r_end, thr_px)
     lap("tip")
     if not np.isfinite(end_t):
         end_t = 0.0
