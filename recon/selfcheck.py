@@ -83,6 +83,9 @@ class SelfCheckParams:
         Limit of (a). A backbone 20 % short leaves about 20 % of the robot's
         area (less where the thinner inner tube is missing) unexplained; good
         frames stay below 5 % (shadow-free twin scenes) -- 0.10 between.
+    max_unexplained_px : float
+        Limit of (a) as a length (px of the innermost tube): a missing tip
+        is a small fraction of a long robot. Good twin frames stay below 6 px.
     max_off_foreground_fraction : float
         Limit of (b): a backbone that leaves the tube for a fifth of its
         in-image length.
@@ -111,6 +114,7 @@ class SelfCheckParams:
     sample_step_px: float = 1.0
     profile_search_px: float = 6.0
     max_unexplained_fraction: float = 0.10
+    max_unexplained_px: float = 8.0
     max_off_foreground_fraction: float = 0.20
     max_centerline_rms_px: float = 2.5
     min_visible_px: float = 10.0
@@ -125,7 +129,7 @@ class SelfCheckParams:
                      "min_visible_px", "min_profile_fraction"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"SelfCheckParams: {name} must be >= 0")
-        for name in ("sample_step_px", "max_unexplained_fraction", "max_off_foreground_fraction", "max_centerline_rms_px"):
+        for name in ("sample_step_px", "max_unexplained_fraction", "max_unexplained_px", "max_off_foreground_fraction", "max_centerline_rms_px"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"SelfCheckParams: {name} must be > 0")
 
@@ -379,6 +383,30 @@ def _normals(uv: np.ndarray) -> np.ndarray:
     return np.where(norm > 1e-9, n / np.where(norm > 1e-9, norm, 1.0), np.array([0.0, 1.0]))
 
 
+def _cut_tip_cap(band: np.ndarray, uv_roi: np.ndarray, r_band_px: float, tol_px: float) -> None:
+    """Square off the band at the tip: a thick line's round cap would explain a missing tip as long as the radius.
+
+    Pixels within the band's radius of the reprojected tip and more than
+    ``tol_px`` beyond it along the tip's tangent are removed from ``band`` (in place).
+    """
+    tip = uv_roi[-1]
+    back = uv_roi[max(0, len(uv_roi) - 4)]
+    d = tip - back
+    n = float(np.hypot(*d))
+    if n < 1e-6:
+        return
+    d = d / n
+    h, w = band.shape
+    r = int(math.ceil(r_band_px)) + 2
+    x0, x1 = max(0, int(tip[0]) - r), min(w, int(tip[0]) + r + 1)
+    y0, y1 = max(0, int(tip[1]) - r), min(h, int(tip[1]) + r + 1)
+    if x0 >= x1 or y0 >= y1:
+        return
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    beyond = (xx - tip[0]) * d[0] + (yy - tip[1]) * d[1] > tol_px
+    band[y0:y1, x0:x1] &= ~beyond
+
+
 def _near_foreground(fg: np.ndarray, uv: np.ndarray, tol_px: float) -> np.ndarray:
     """(m,) bool: a foreground pixel lies within ``tol_px`` of each point (pixels of ``fg``)."""
     r = int(math.floor(tol_px))
@@ -448,7 +476,8 @@ def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_
 def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.ndarray, radii_mm: tuple,
                 params: SelfCheckParams) -> dict:
     """The three figures of one view (None where not measured)."""
-    none = {"unexplained_fraction": None, "off_foreground_fraction": None, "centerline_rms_px": None, "visible_px": 0.0}
+    none = {"unexplained_fraction": None, "unexplained_px": None, "off_foreground_fraction": None, "centerline_rms_px": None,
+            "visible_px": 0.0}
     uv, depth = _dense_projection(camera, points_world_mm, params.sample_step_px)
     finite = np.all(np.isfinite(uv), axis=1) & (depth > 1e-6)
     vis = finite & camera.in_image(np.where(finite[:, None], uv, -1e9))
@@ -480,6 +509,7 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
         pl = np.rint((poly - [x0, y0]) * 16).astype(np.int32)
         cv2.polylines(band, [pl.reshape(-1, 1, 2)], False, 1, thickness=thickness, lineType=cv2.LINE_8, shift=4)
         band = band.astype(bool)
+        _cut_tip_cap(band, uv[finite] - [x0, y0], r_band, params.explain_tolerance_px)
         fg = foreground_roi(view, gray, tuple(roi), exclude=band)
         # Close 1-px cracks (specular highlights as bright as the backdrop) before measuring runs and regions.
         fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
@@ -519,8 +549,8 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     good = np.isfinite(offs)
     enough = good.sum() >= max(10.0, params.min_profile_fraction * offs.size)
     rms = float(np.sqrt(np.mean(offs[good] ** 2))) if enough else None
-    return {"unexplained_fraction": unexplained, "off_foreground_fraction": off, "centerline_rms_px": rms,
-            "visible_px": none["visible_px"]}
+    return {"unexplained_fraction": unexplained, "unexplained_px": unexplained_px, "off_foreground_fraction": off,
+            "centerline_rms_px": rms, "visible_px": none["visible_px"]}
 
 
 def _verdict(figures: dict, params: SelfCheckParams) -> str | None:
@@ -532,6 +562,8 @@ def _verdict(figures: dict, params: SelfCheckParams) -> str | None:
              lambda x, lim: f"{cam}: {100 * x:.0f} % of the reprojected tube is not on foreground (limit {100 * lim:.0f} %)"),
             ("unexplained_fraction", params.max_unexplained_fraction,
              lambda x, lim: f"{cam}: {100 * x:.0f} % of the foreground along the robot is not explained by the backbone (limit {100 * lim:.0f} %)"),
+            ("unexplained_px", params.max_unexplained_px,
+             lambda x, lim: f"{cam}: {x:.0f} px of tube along the robot are not explained by the backbone (limit {lim:.0f} px)"),
             ("centerline_rms_px", params.max_centerline_rms_px,
              lambda x, lim: f"{cam}: the reprojected centerline is {x:.1f} px RMS off the tube's middle (limit {lim:.1f} px)"),
         )
