@@ -767,7 +767,7 @@ h1{font-size:1.6em;margin-bottom:0.2em} h2{border-bottom:2px solid #0072b2;paddi
 h3{margin-bottom:0.3em} .sub{color:#555;margin-top:0}
 table{border-collapse:collapse;font-size:0.92em;margin:0.6em 0}
 th,td{border:1px solid #ccc;padding:3px 8px;text-align:right} th{background:#eef4f9}
-td.l,th.l{text-align:left} tr.failed td{background:#fbe9e2}
+td.l,th.l{text-align:left} tr.failed td{background:#fbe9e2} tr.suspect td{background:#fdf3c8}
 img{max-width:100%;height:auto;border:1px solid #ddd;margin:4px 0}
 .figs img{display:block} .note{color:#555;font-size:0.9em}
 nav a{margin-right:1em} code{background:#f3f3f3;padding:1px 3px}
@@ -804,7 +804,10 @@ def _html_page(run: RunData, figs: dict, details: list, meshes: dict, notes: lis
     o.append("<h2 id='summary'>Summary</h2><table>")
     rows = [
         ("method", e(str(s.get("method")))),
-        ("frames", f"{s.get('frames', 0)} ({s.get('failed_frames', 0)} failed, {s.get('scored_frames', 0)} scored against ground truth)"),
+        ("frames", f"{s.get('frames', 0)} ({s.get('failed_frames', 0)} failed, "
+                   + (f"{s.get('suspect_frames', 0)} suspect by the self-check, " if s.get("suspect_frames") is not None else "")
+                   + (f"{s['jump_frames']} with a temporal jump, " if s.get("jump_frames") else "")
+                   + f"{s.get('scored_frames', 0)} ok frames scored against ground truth)"),
         ("pixel footprint at the base", _f(mmpp, 4, " mm")),
     ]
     if s.get("mean_error_mm") is not None:
@@ -867,13 +870,13 @@ def _html_page(run: RunData, figs: dict, details: list, meshes: dict, notes: lis
     dset = set(details)
     for r in run.records:
         fr = r["frame"]
-        cls = " class='failed'" if r["status"] != "ok" else ""
+        cls = f" class='{e(r['status'])}'" if r["status"] != "ok" else ""
         link = f"<a href='#f{fr}'>view</a>" if fr in dset else ""
         m = meshes.get(fr, {})
         for fmt in ("ply", "obj", "glb", "both.glb"):
             if fmt in m:
                 link += f" <a href='{e(m[fmt])}'>{fmt}</a>"
-        st = "ok" if r["status"] == "ok" else "failed"
+        st = _status_html(r)
         if r.get("note"):
             st += f" <span class='note'>({e(str(r['note']))})</span>"
         o.append(f"<tr{cls}><td>{fr}</td><td>{_f(r.get('t_s'), 2)}</td><td class='l'>{st}</td><td>{r.get('n_points') or '&ndash;'}</td>"
@@ -882,20 +885,22 @@ def _html_page(run: RunData, figs: dict, details: list, meshes: dict, notes: lis
                  f"<td>{_f(r.get('ms'), 1)}</td><td class='l'>{link}</td></tr>")
     o.append("</table>")
     # ---- failed
-    o.append("<h2 id='failed'>Failed frames</h2>")
+    o.append("<h2 id='failed'>Failed and suspect frames</h2>")
     failed = [r for r in run.records if r["status"] != "ok"]
     if failed:
         groups = {}
         for r in failed:
-            groups.setdefault(str(r.get("reason")), []).append(r["frame"])
-        o.append(f"<p>{len(failed)} of {len(run.records)} frames failed, for {len(groups)} reason{'s' if len(groups) > 1 else ''}:</p>")
-        o.append("<table><tr><th>frames</th><th class='l'>frame numbers</th><th class='l'>reason</th></tr>")
-        for reason, frs in sorted(groups.items(), key=lambda kv: (-len(kv[1]), kv[1][0])):
+            groups.setdefault((r["status"], str(r.get("reason"))), []).append(r["frame"])
+        n_suspect = sum(r["status"] == "suspect" for r in failed)
+        o.append(f"<p>{len(failed) - n_suspect} of {len(run.records)} frames failed and {n_suspect} are suspect (reconstructed, "
+                 f"but the self-check says the shape does not explain the images), for {len(groups)} reason{'s' if len(groups) > 1 else ''}:</p>")
+        o.append("<table><tr><th>frames</th><th class='l'>status</th><th class='l'>frame numbers</th><th class='l'>reason</th></tr>")
+        for (status, reason), frs in sorted(groups.items(), key=lambda kv: (kv[0][0] != "failed", -len(kv[1]), kv[1][0])):
             links = ", ".join(f"<a href='#f{f}'>{f}</a>" if f in dset else str(f) for f in frs)
-            o.append(f"<tr class='failed'><td>{len(frs)}</td><td class='l'>{links}</td><td class='l'>{e(reason)}</td></tr>")
+            o.append(f"<tr class='{e(status)}'><td>{len(frs)}</td><td class='l'>{e(status)}</td><td class='l'>{links}</td><td class='l'>{e(reason)}</td></tr>")
         o.append("</table>")
     else:
-        o.append("<p>None: every frame was reconstructed.</p>")
+        o.append("<p>None: every frame was reconstructed and passed the self-check.</p>")
     # ---- per-frame details
     if details:
         o.append("<h2 id='detail'>Frame by frame</h2>")
@@ -910,17 +915,27 @@ def _html_page(run: RunData, figs: dict, details: list, meshes: dict, notes: lis
             if "overlay" in figs and fr in figs["overlay"]:
                 o.append(f"<img src='{e(figs['overlay'][fr])}' alt='frame {fr} overlays' loading='lazy'>")
             elif r.get("status") != "ok":
-                o.append(f"<p>failed: {e(str(r.get('reason')))}</p>")
+                o.append(f"<p>{e(str(r.get('status')))}: {e(str(r.get('reason')))}</p>")
     o.append(f"<p class='note'>Built by <code>ctr-bench report</code> in {built_s:.1f} s; rebuild with <code>ctr-bench report {e(str(run.out))}</code>.</p>")
     o.append("</body></html>")
     return "\n".join(o)
+
+
+def _status_html(r: dict) -> str:
+    """A frame's status cell: ok, failed, or suspect with the self-check's reason; a temporal jump noted."""
+    st = html.escape(str(r["status"]))
+    if r["status"] == "suspect":
+        st += f": {html.escape(str(r.get('reason')))}"
+    if r.get("jump_flag"):
+        st += f" <span class='note'>(jump: {html.escape(str(r.get('jump_reason')))})</span>"
+    return st
 
 
 # ----------------------------------------------------------------------------- builder
 def _frame_header(r: dict, mmpp) -> str:
     parts = [f"frame {r['frame']}", f"t = {r.get('t_s', 0):.2f} s"]
     if r["status"] != "ok":
-        parts.append("FAILED")
+        parts.append(str(r["status"]).upper())
     for key, lab in (("tip_error_mm", "tip error"), ("mean_error_mm", "mean error"), ("max_error_mm", "max error")):
         v = r.get(key)
         if v is not None:
@@ -957,7 +972,7 @@ def _overlay_for_frame(run: RunData, r: dict, path: Path) -> Path | None:
             elif "backbone_world_mm" in truth and cam_model is not None:
                 c = cam_model.with_pose(truth[f"T_cam_world_{cam}"]) if f"T_cam_world_{cam}" in truth else cam_model
                 truth_uv[cam] = c.project(truth["backbone_world_mm"])[0]
-    footer = f"failed: {r.get('reason')}" if r["status"] != "ok" else ""
+    footer = f"{r['status']}: {r.get('reason')}" if r["status"] != "ok" else ""
     return overlay_panels(path, images, recon_uv, truth_uv, _frame_header(r, run.summary.get("mm_per_px")), footer)
 
 
@@ -1022,7 +1037,7 @@ def build_report(out_dir, meshes: bool | None = None, max_detail_frames: int = M
         figs["errors_per_frame"] = fig_errors_per_frame(
             tmp / "errors_per_frame.png", [r["frame"] for r in recs], [r.get("mean_error_mm") for r in recs],
             [r.get("max_error_mm") for r in recs], [r.get("tip_error_mm") for r in recs],
-            [r["frame"] for r in recs if r["status"] != "ok"], mmpp).name
+            [r["frame"] for r in recs if r["status"] == "failed"], mmpp).name
     ms = [r["ms"] for r in recs if r["status"] == "ok" and r.get("ms") is not None]
     stage = {}
     for r in recs:
