@@ -34,7 +34,7 @@ from .carving import CarvingParams, bounding_box, carve
 from .centerline import CenterlineParams, centerline_params_for, extract_centerline
 from .errors import FrameError
 from .rigcal import RigCalibration
-from .silhouette import BORDERS, SilhouetteParams, extract_silhouette
+from .silhouette import BORDERS, SilhouetteParams, extract_silhouette, hysteresis_threshold
 
 __all__ = ["PaperParams", "PaperModel", "Reconstruction", "prepare_paper", "reconstruct_paper", "camera_order",
            "check_tube_widths", "behind_base_pixels"]
@@ -123,6 +123,15 @@ class PaperModel:
     behind_base : dict
         Camera name -> flat indices of the pixels behind the robot base
         (``cut_behind_base``), or None.
+    full_scale : dict
+        Camera name -> factor from the frames' gray levels to 8-bit ones for
+        the contrast floor (``SilhouetteParams.min_contrast``): 255 for a
+        camera whose background frames are all in [0, 1] (binary or [0, 1]
+        float masks), else 1.
+    attach_gap_px : dict
+        Camera name -> the backbone's longest bridged gap
+        (``BackboneParams.max_gap_mm``) in px at the robot base: regions as
+        wide as a tube within it of the largest join the silhouette.
     silhouette : dict
         Camera name -> :class:`~recon.silhouette.SilhouetteParams`: the
         method's, with the border the robot base lies beyond (if it lies
@@ -136,6 +145,8 @@ class PaperModel:
     tube_radii_px: dict = field(default_factory=dict)
     silhouette: dict = field(default_factory=dict)
     behind_base: dict = field(default_factory=dict)
+    full_scale: dict = field(default_factory=dict)
+    attach_gap_px: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -218,7 +229,7 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
     names = camera_order(rig.names)
     if len(names) < 2:
         raise ValueError(f"the paper's method needs two cameras, the rig has {len(names)}")
-    backgrounds, centerline, radii, sil, cut = {}, {}, {}, {}, {}
+    backgrounds, centerline, radii, sil, cut, scale, attach = {}, {}, {}, {}, {}, {}, {}
     for name in names:
         cam = rig[name]
         if name not in background_frames:
@@ -232,6 +243,8 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
                 f"{name}: background frames are {model.shape[1]}x{model.shape[0]} but the camera is {cam.width}x{cam.height}"
             )
         backgrounds[name] = model
+        # Masks (0/1 or [0, 1] floats): the contrast floor is in 8-bit gray levels.
+        scale[name] = 255.0 if float(np.max(background_frames[name])) <= 1.0 else 1.0
         centerline[name] = centerline_params_for(
             cam,
             params.outer_tube_radius_mm,
@@ -245,6 +258,7 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
         )
         mmpp = cam.mm_per_pixel_at(rig.base_point_world_mm)
         radii[name] = (params.outer_tube_radius_mm / mmpp, params.inner_tube_radius_mm / mmpp)
+        attach[name] = params.backbone.max_gap_mm / mmpp
         behind = [b for b in base_borders(cam, rig.base_point_world_mm) if b not in params.silhouette.allowed_borders]
         sil[name] = replace(params.silhouette, allowed_borders=params.silhouette.allowed_borders + tuple(behind))
         cut[name] = (
@@ -254,7 +268,7 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
         )
     return PaperModel(
         rig=rig, camera_names=names, backgrounds=backgrounds, centerline=centerline, tube_radii_px=radii, silhouette=sil,
-        behind_base=cut,
+        behind_base=cut, full_scale=scale, attach_gap_px=attach,
     )
 
 
@@ -419,8 +433,10 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
         check_tube_widths(name, model.tube_radii_px.get(name), params.min_tube_width_px)
         diff, peak = difference_image(model.backgrounds[name], frames[name], name, ignore=model.behind_base.get(name))
         lap("background")
+        sp = model.silhouette.get(name, params.silhouette)
         silhouettes[name] = extract_silhouette(
-            diff, model.silhouette.get(name, params.silhouette), name, max_difference=peak, tube_radii_px=model.tube_radii_px.get(name)
+            diff, sp, name, max_difference=peak * model.full_scale.get(name, 1.0), tube_radii_px=model.tube_radii_px.get(name),
+            low_threshold=hysteresis_threshold(diff, sp), attach_gap_px=model.attach_gap_px.get(name),
         )
         lap("silhouette")
         disks[name] = {}

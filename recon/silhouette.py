@@ -34,7 +34,7 @@ import numpy as np
 
 from .errors import FrameError
 
-__all__ = ["SilhouetteParams", "extract_silhouette", "BORDERS"]
+__all__ = ["SilhouetteParams", "extract_silhouette", "hysteresis_threshold", "BORDERS"]
 
 #: Image borders by name, in the order they are reported.
 BORDERS = ("left", "right", "top", "bottom")
@@ -78,6 +78,18 @@ class SilhouetteParams:
         :func:`extract_silhouette`; no closing without it), at least 1 px.
         0.5 on the paper's tubes: a 2 px disk, which seals cracks up to ~4 px
         wide in a 8.6 px inner tube.
+    group_gap_fraction : float
+        With ``tube_radii_px``, regions less than this many outer-tube
+        diameters apart count as one region (not in the paper): a tube whose
+        brightness matches the backdrop over a short stretch breaks the
+        thresholded silhouette into pieces, and the largest piece alone would
+        silently drop the rest of the robot. 0 disables it.
+    hysteresis_sigma, hysteresis_floor : float
+        The low threshold of the hysteresis (``low_threshold`` argument of
+        :func:`extract_silhouette`, see :func:`hysteresis_threshold`): this
+        many times the frame's robust noise level of the difference, and at
+        least ``hysteresis_floor`` (normalized). ``hysteresis_sigma = 0``:
+        none (the paper's single threshold).
     """
 
     threshold: float = 0.25
@@ -89,6 +101,9 @@ class SilhouetteParams:
     fill_holes: bool = True
     close_tube_fraction: float = 0.5
     min_width_fraction: float = 0.7
+    group_gap_fraction: float = 1.0
+    hysteresis_sigma: float = 4.0
+    hysteresis_floor: float = 0.05
 
     def __post_init__(self):
         bad = [b for b in self.allowed_borders if b not in BORDERS]
@@ -99,6 +114,23 @@ class SilhouetteParams:
         if not self.close_tube_fraction >= 0.0:
             raise ValueError(f"SilhouetteParams.close_tube_fraction must be >= 0, got {self.close_tube_fraction}")
         object.__setattr__(self, "allowed_borders", tuple(self.allowed_borders))
+
+
+def hysteresis_threshold(diff: np.ndarray, params: SilhouetteParams) -> float | None:
+    """Low threshold (normalized) for :func:`extract_silhouette`, or None (no hysteresis).
+
+    ``hysteresis_sigma`` times the noise level of the normalized difference,
+    estimated robustly as its median over the frame / 0.6745 (the robot covers
+    a few percent of it), at least ``hysteresis_floor``, at most the
+    threshold. Sampled every 7th pixel: the median of 5 megapixels costs more
+    than the rest of the stage.
+    """
+    if not params.hysteresis_sigma > 0:
+        return None
+    sample = np.ascontiguousarray(diff).reshape(-1)[::7]
+    sigma = float(np.median(sample)) / 0.6745
+    low = max(params.hysteresis_sigma * sigma, params.hysteresis_floor)
+    return low if low < params.threshold else None
 
 
 def _touched_borders(x: int, y: int, w: int, h: int, shape, margin: int) -> list:
@@ -120,6 +152,8 @@ def extract_silhouette(
     max_difference: float | None = None,
     tube_radii_px=None,
     max_hole_radius_px: float | None = None,
+    low_threshold: float | None = None,
+    attach_gap_px: float | None = None,
 ) -> np.ndarray:
     """Robot silhouette from a normalized difference image.
 
@@ -141,6 +175,18 @@ def extract_silhouette(
     max_hole_radius_px : float, optional
         Holes whose inscribed radius (px) exceeds this are not filled; default
         the largest of ``tube_radii_px`` plus 1 px (all holes without it).
+    low_threshold : float, optional
+        Hysteresis (not in the paper): pixels above this (normalized, below
+        ``params.threshold``) belong to the silhouette when they are
+        connected to a pixel above ``params.threshold``. Where a metallic
+        tube crosses a backdrop of its own brightness its difference falls
+        to a few noise levels; the paper's threshold alone cuts the tube
+        into a highlight and a shadow band, each too thin for the erosions.
+    attach_gap_px : float, optional
+        Regions as wide as a tube and of at least ``min_area_px`` within this
+        distance (px) of the largest join the silhouette (not in the paper):
+        the rest of a tube beyond a stretch where it matched the backdrop.
+        They are then no competitor in the "two blobs" test.
 
     Returns
     -------
@@ -160,10 +206,21 @@ def extract_silhouette(
             f"no silhouette (max difference {max_difference:.3g} < {params.min_contrast:g} gray levels)", camera_name
         )
     binary = np.greater(diff, params.threshold).view(np.uint8)
+    if low_threshold is not None and low_threshold < params.threshold:
+        weak = np.greater(diff, low_threshold).view(np.uint8)
+        nw, wlab = cv2.connectedComponentsWithAlgorithm(weak, 8, cv2.CV_32S, cv2.CCL_GRANA)
+        seeded = np.zeros(nw, bool)
+        seeded[wlab[binary.view(bool)]] = True
+        seeded[0] = False
+        binary = seeded[wlab].view(np.uint8)
     # Grana's algorithm with stats is ~3x faster than the default on 1024x768.
     n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(binary, 8, cv2.CV_32S, cv2.CCL_GRANA)
     if n <= 1:
         raise FrameError(f"no silhouette (no pixel above {params.threshold:g})", camera_name)
+    group_of = None
+    if tube_radii_px is not None and params.group_gap_fraction > 0 and n > 2:
+        gap = params.group_gap_fraction * 2.0 * float(max(tube_radii_px))
+        n, labels, stats, group_of = _group_regions(binary, labels, stats, gap)
     areas = stats[1:, cv2.CC_STAT_AREA]
     order = [int(i) + 1 for i in np.argsort(areas, kind="stable")[::-1]]
     a0 = int(stats[order[0], cv2.CC_STAT_AREA])
@@ -176,7 +233,7 @@ def extract_silhouette(
         need = params.min_width_fraction * float(min(tube_radii_px))
         regions, widths = [], []
         for i in order[:_WIDTH_CANDIDATES]:
-            widths.append(_half_width(labels, stats[i], i))
+            widths.append(_half_width(labels, stats[i], i, group_of))
             if widths[-1] >= need:
                 regions.append(i)
         if not regions:
@@ -191,16 +248,29 @@ def extract_silhouette(
     a1 = int(stats[largest, cv2.CC_STAT_AREA])
     if a1 < params.min_area_px:
         raise FrameError(f"no silhouette (largest region {a1} px < {params.min_area_px} px)", camera_name)
-    if len(regions) > 1:
-        a2 = int(stats[regions[1], cv2.CC_STAT_AREA])
+    members = [largest]
+    if attach_gap_px is not None and len(regions) > 1:
+        # Pieces of the same tube beyond a stretch the threshold lost: every
+        # further region as wide as a tube within ``attach_gap_px`` of the
+        # robot joins it (the backbone bridges such gaps in 3-D).
+        members += _attached(labels, stats, largest, regions[1:], attach_gap_px, params.min_area_px, group_of)
+    rest = [i for i in regions if i not in members]
+    if rest:
+        a2 = int(stats[rest[0], cv2.CC_STAT_AREA])
         if a2 >= params.ambiguity_ratio * a1:
             raise FrameError(f"two blobs of similar size ({a1} px and {a2} px)", camera_name)
-    x, y, w, h = (int(v) for v in stats[largest, :4])
+    x0 = min(int(stats[i, 0]) for i in members)
+    y0 = min(int(stats[i, 1]) for i in members)
+    x1 = max(int(stats[i, 0] + stats[i, 2]) for i in members)
+    y1 = max(int(stats[i, 1] + stats[i, 3]) for i in members)
+    x, y, w, h = x0, y0, x1 - x0, y1 - y0
     off = [b for b in _touched_borders(x, y, w, h, diff.shape, params.border_margin_px) if b not in params.allowed_borders]
     if off:
         where = off[0] if len(off) == 1 else ", ".join(off[:-1]) + " and " + off[-1]
         raise FrameError(f"robot leaves the view at the {where} border{'s' if len(off) > 1 else ''}", camera_name)
-    region = labels == largest
+    region = labels == largest if len(members) == 1 else np.isin(labels, members)
+    if group_of is not None:
+        region &= binary.view(bool)
     close_px = 0
     if tube_radii_px is not None and params.close_tube_fraction > 0:
         close_px = max(1, int(round(params.close_tube_fraction * float(min(tube_radii_px)))))
@@ -215,11 +285,60 @@ def extract_silhouette(
 _WIDTH_CANDIDATES = 8
 
 
-def _half_width(labels: np.ndarray, stat, label: int) -> float:
+def _attached(labels, stats, main: int, others, gap_px: float, min_area_px: int, binary=None) -> list:
+    """Labels of ``others`` (area >= ``min_area_px``) whose pixels come within ``gap_px`` of region ``main``."""
+    H, W = labels.shape
+    x, y, w, h = (int(v) for v in stats[main, :4])
+    g = int(np.ceil(gap_px)) + 1
+    x0, y0, x1, y1 = max(x - g, 0), max(y - g, 0), min(x + w + g, W), min(y + h + g, H)
+    crop = labels[y0:y1, x0:x1]
+    not_main = crop != main
+    if binary is not None:
+        not_main |= ~binary[y0:y1, x0:x1].view(bool)
+    dist = cv2.distanceTransform(not_main.view(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_5)
+    out = []
+    for i in others:
+        if int(stats[i, cv2.CC_STAT_AREA]) < min_area_px:
+            continue
+        on = crop == i
+        if binary is not None:
+            on &= binary[y0:y1, x0:x1].view(bool)
+        if on.any() and float(dist[on].min()) <= gap_px:
+            out.append(i)
+    return out
+
+
+def _group_regions(binary: np.ndarray, labels: np.ndarray, stats: np.ndarray, gap_px: float):
+    """Regions of ``binary`` less than ``gap_px`` apart merged into one label each.
+
+    Returns ``(n, labels, stats, binary)`` as :func:`cv2.connectedComponentsWithStats`
+    would for the merged regions: the labels cover the gaps between the
+    pieces too (mask them with ``binary``), the areas count pixels of
+    ``binary`` only.
+    """
+    r = max(1, int(np.ceil(0.5 * gap_px)))
+    grown = cv2.dilate(binary, _disk(r))
+    n, glab, gstats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(grown, 8, cv2.CV_32S, cv2.CCL_GRANA)
+    on = binary.view(bool)
+    area = np.bincount(glab[on], minlength=n)
+    gstats = gstats.copy()
+    gstats[:, cv2.CC_STAT_AREA] = area
+    # Bounding boxes of the pieces (not of the grown region).
+    for g in range(1, n):
+        x, y, w, h = (int(v) for v in gstats[g, :4])
+        sub = (glab[y : y + h, x : x + w] == g) & on[y : y + h, x : x + w]
+        bx, by, bw, bh = cv2.boundingRect(sub.view(np.uint8))
+        gstats[g, :4] = (x + bx, y + by, bw, bh)
+    return n, glab, gstats, binary
+
+
+def _half_width(labels: np.ndarray, stat, label: int, binary=None) -> float:
     """Inscribed radius (px) of one labelled region: its distance transform's maximum less half a pixel."""
     x, y, w, h = (int(v) for v in stat[:4])
     crop = np.zeros((h + 2, w + 2), np.uint8)
     crop[1:-1, 1:-1] = labels[y : y + h, x : x + w] == label
+    if binary is not None:
+        crop[1:-1, 1:-1] &= binary[y : y + h, x : x + w]
     return float(cv2.distanceTransform(crop, cv2.DIST_L2, cv2.DIST_MASK_5).max()) - 0.5
 
 
