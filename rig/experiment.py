@@ -563,6 +563,9 @@ class ExperimentRunner:
                        tip_world_mm=[float(v) for v in result.tip_world_mm],
                        transition_s_mm=_finite(result.transition_s_mm),
                        timings_ms={k: round(float(v), 3) for k, v in result.timings_ms.items()})
+            # The fast method's temporal check, as reconstruct_session records it (docs/outputs.md).
+            rec["jump_flag"] = bool(getattr(result, "jump_flag", False))
+            rec["jump_reason"] = getattr(result, "jump_reason", None) if rec["jump_flag"] else None
             if pair.truth is not None:
                 errs = backbone_errors(pts, pair.truth["backbone_world_mm"])
                 rec.update({k: _finite(v) for k, v in errs.items()})
