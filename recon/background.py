@@ -90,6 +90,10 @@ def _size(shape) -> str:
     return f"{shape[1]}x{shape[0]}"
 
 
+# float64 values per block of fit_eigenbackground (~16 MB).
+_CHUNK_VALUES = 1 << 21
+
+
 def fit_eigenbackground(frames, params: EigenBackgroundParams = EigenBackgroundParams()) -> EigenBackground:
     """Fit an eigenbackground model to frames of the empty scene.
 
@@ -134,22 +138,35 @@ def fit_eigenbackground(frames, params: EigenBackgroundParams = EigenBackgroundP
     if stack.ndim != 3:
         raise ValueError(f"background frames must be (N, H, W) gray images, got shape {stack.shape}")
     shape = tuple(int(s) for s in stack.shape[1:])
-    X = stack.reshape(n, -1).astype(np.float64)
-    mean = X.mean(axis=0)
-    X -= mean
+    X = stack.reshape(n, -1)
+    P = X.shape[1]
+    # In float64 over blocks of pixels: a float64 copy of 30 frames of 5
+    # megapixels would be 1.2 GB; a block is a few MB.
+    step = max(1, _CHUNK_VALUES // max(n, 1))
+    mean = np.empty(P, np.float64)
     # Gram matrix in float64: it sums ~1e6 products per entry.
-    gram = X @ X.T
+    gram = np.zeros((n, n))
+    for a in range(0, P, step):
+        xa = X[:, a : a + step].astype(np.float64)
+        mean[a : a + step] = xa.mean(axis=0)
+        xa -= mean[a : a + step]
+        gram += xa @ xa.T
     evals, evecs = np.linalg.eigh(gram)
     order = np.argsort(evals)[::-1][:k]
     evals, evecs = evals[order], evecs[:, order]
     # Gram eigenvalues are variances summed over pixels and frames.
-    keep = evals > params.min_variance * X.shape[0] * X.shape[1]
+    keep = evals > params.min_variance * n * P
     evals, evecs = evals[keep], evecs[:, keep]
     # u_i = X^T v_i / sqrt(lambda_i) are unit eigenvectors of X^T X.
-    basis = (evecs.T @ X) / np.sqrt(evals)[:, None]
+    basis = np.empty((evals.size, P), np.float32)
+    scale = 1.0 / np.sqrt(evals)[:, None]
+    for a in range(0, P, step):
+        xa = X[:, a : a + step].astype(np.float64)
+        xa -= mean[a : a + step]
+        basis[:, a : a + step] = (evecs.T @ xa) * scale
     return EigenBackground(
         mean=mean.astype(np.float32),
-        basis=np.ascontiguousarray(basis, dtype=np.float32),
+        basis=basis,
         eigenvalues=evals / n,
         shape=shape,
     )
