@@ -56,7 +56,7 @@ def auto_texture_px(width_px: int, height_px: int) -> int:
 
 
 def _camera_plane(camera, target_mm: np.ndarray, behind_mm: float, margin_px: float) -> Plane:
-    """The plane behind the target that fills ``camera``'s canvas (``margin_px`` beyond the sensor)."""
+    """The plane behind the target that fills ``camera``'s view (``margin_px`` beyond the sensor's border)."""
     C = camera.center_world_mm
     los = target_mm - C
     dist = float(np.linalg.norm(los))
@@ -68,12 +68,15 @@ def _camera_plane(camera, target_mm: np.ndarray, behind_mm: float, margin_px: fl
     u = x_cam - np.dot(x_cam, normal) * normal
     u /= np.linalg.norm(u)
     v = np.cross(normal, u)
-    # Corner rays of the ideal canvas (the renderer draws the pinhole image with this margin).
+    # Rays through the sensor border, through the lens distortion (barrel or pincushion
+    # moves the view's edge), and through the border ``margin_px`` further out (jitter).
     w, h = camera.width, camera.height
     m = margin_px
-    corners = np.array([[-m, -m], [w - 1 + m, -m], [w - 1 + m, h - 1 + m], [-m, h - 1 + m]], float)
-    d_cam = np.linalg.solve(camera.K, np.concatenate([corners, np.ones((4, 1))], axis=1).T).T
-    d_world = d_cam @ R_world_cam.T
+    u_s = np.linspace(-0.5 - m, w - 0.5 + m, 64)
+    v_s = np.linspace(-0.5 - m, h - 0.5 + m, 64)
+    border = np.concatenate([np.stack([u_s, np.full(64, v_s[0])], 1), np.stack([u_s, np.full(64, v_s[-1])], 1),
+                             np.stack([np.full(64, u_s[0]), v_s], 1), np.stack([np.full(64, u_s[-1]), v_s], 1)])
+    _, d_world = camera.rays(border)
     t = ((center - C) @ normal) / (d_world @ normal)
     hits = C + t[:, None] * d_world - center
     half_u = float(np.abs(hits @ u).max())

@@ -180,7 +180,7 @@ class SetRenderer:
         rng_seed = scene.seed
         cx = float(np.mean([c.T_world_cam[0, 3] for c in scene.rig.cameras.values()]))
         tex_px = d.texture_px or auto_texture_px(self.width, self.height)
-        planes = backdrop_planes(scene, margin_px=self.margin + 4)
+        planes = backdrop_planes(scene)
         for i, plane in enumerate(planes):
             # Plane i's texture is seeded with seed + i (the floor and the wall of the original set: seed, seed + 1).
             tex = backdrop_texture(d.backdrop, d.backdrop_color, d.backdrop_color2, rng_seed + i, tex_px, d.pattern_scale, d.photo)
