@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .background import EigenBackgroundParams, fit_eigenbackground
+from .background import EigenBackground, EigenBackgroundParams, fit_eigenbackground
 from .carving import rig_center
 from .epipolar import EpipolarFrame, align_dp, conditioning, monotonic, triangulate_rays
 from .errors import FrameError
@@ -251,6 +251,19 @@ class FastReconstruction:
 
 
 # ----------------------------------------------------------------------------- prepare
+def _offset_only(eig: EigenBackground) -> EigenBackground:
+    """A background that does not vary at all (binary masks, a uniform black or white backdrop, synthetic frames).
+
+    The eigenbackgrounds drop every direction of zero variance, leaving none;
+    the per-view stages need at least one. One uniform offset, with a prior
+    variance of 1 gray level^2 per pixel, keeps the model what the frames
+    say (the mean) while absorbing a small overall offset of the live frames.
+    """
+    P = int(eig.mean.size)
+    basis = np.full((1, P), 1.0 / np.sqrt(P), np.float32)
+    return EigenBackground(mean=eig.mean, basis=basis, eigenvalues=np.array([float(P)]), shape=eig.shape)
+
+
 def prepare_fast(rig: RigCalibration, background_frames: dict, params: FastParams = FastParams()) -> FastModel:
     """Fit the eigenbackgrounds and the per-view constants.
 
@@ -276,6 +289,8 @@ def prepare_fast(rig: RigCalibration, background_frames: dict, params: FastParam
             eig = fit_eigenbackground(frames, params.background)
         except ValueError as exc:
             raise ValueError(f"{name}: {exc}") from None
+        if eig.k == 0:
+            eig = _offset_only(eig)
         if eig.shape != (cam.height, cam.width):
             raise ValueError(f"{name}: background frames are {eig.shape[1]}x{eig.shape[0]} but the camera is {cam.width}x{cam.height}")
         views[name] = prepare_view(

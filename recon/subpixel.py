@@ -527,11 +527,11 @@ def frame_coefficients(model: ViewModel, frame: np.ndarray) -> np.ndarray:
     if USE_NUMBA:
         c, fmax = frame_coefficients_nb(frame.reshape(-1), model.sample_index, model.sample_mean, model.sample_basis_t,
                                         model.sample_gram + np.diag(model.sample_prior), model.sample_threshold)
-        if fmax <= 0.01 * model.peak:
+        if fmax <= 0.01 * model.peak and model.peak > 0:  # (never with a black background: a mask without the robot is no camera fault)
             raise FrameError("all-black frame", model.name)
         return np.concatenate([[1.0], c]).astype(np.float32)
     fs = np.take(frame.reshape(-1), model.sample_index).sum(axis=1, dtype=np.float64) * 0.25
-    if float(fs.max()) <= 0.01 * model.peak:
+    if float(fs.max()) <= 0.01 * model.peak and model.peak > 0:
         raise FrameError("all-black frame", model.name)
     r = fs - model.sample_mean
     Bt = model.sample_basis_t

@@ -1,0 +1,96 @@
+"""The fast method off the twin's own set-up (issue 13): robots entering across the image border, cameras far
+from orthogonal, binary masks on uniform black or white, a textured backdrop the tube fades into.
+
+Synthetic views (drawn tubes, no rendering), so each case takes a fraction of a second.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from recon.camera import Camera, look_at
+from recon.errors import FrameError
+from recon.metrics import backbone_errors
+from recon.methods import prepare
+from recon.rigcal import RigCalibration
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_fast_method import _draw_tube, _robot  # noqa: E402
+
+K = np.array([[2580.0, 0.0, 511.5], [0.0, 2580.0, 383.5], [0.0, 0.0, 1.0]])
+
+
+def _rig(angle_deg: float, target=(45.0, 0.0, 0.0), dist=(0.0, 0.0, 0.0, 0.0, 0.0), tilt_mm=0.0):
+    """Side camera along +y, top camera ``angle_deg`` from it (90: the paper's orthogonal rig)."""
+    t = np.asarray(target, float)
+    a = np.radians(angle_deg)
+    top_axis = np.array([0.0, -np.cos(a), -np.sin(a)])  # angle to the side axis (0, 1, 0)
+    side = Camera("side", 1024, 768, K, dist=dist, T_cam_world=look_at(t + [tilt_mm, -300, 0.5 * tilt_mm], t, [0, 0, -1]))
+    top = Camera("top", 1024, 768, K, dist=dist, T_cam_world=look_at(t - 300 * top_axis + [-tilt_mm, 0, 0], t, [0, -1, 0]))
+    return RigCalibration({"side": side, "top": top}, base_point_world_mm=[0, 0, 0], insertion_axis_world=[1, 0, 0])
+
+
+def _visible(rig, pts):
+    """The backbone from its first point inside both images on (the robot enters the view once)."""
+    vis = np.ones(len(pts), bool)
+    for name in rig.names:
+        cam = rig[name]
+        uv, _ = cam.project(pts)
+        vis &= (uv[:, 0] >= 0) & (uv[:, 0] <= cam.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= cam.height - 1)
+    return pts[int(np.argmax(vis)):]
+
+
+def _px(rig, e_mm):
+    mm_px = float(np.mean([rig[n].mm_per_pixel_at(np.array([45.0, 0, 0])) for n in rig.names]))
+    return e_mm / mm_px
+
+
+@pytest.mark.parametrize("background", [0, 255], ids=["black", "white"])
+def test_masks_base_outside_the_view_non_orthogonal(background):
+    """Binary masks on a uniform background (no variance for the eigenbackgrounds), cameras 75 deg apart,
+    the base ~140 px left of the side image: the robot enters across its border."""
+    rig = _rig(75.0, target=(75.0, 0.0, 0.0))
+    assert rig["side"].project(np.zeros((1, 3)))[0][0, 0] < -50  # the base is out of the side view
+    s, pts, radii = _robot(length=95.0, straight=45.0)
+    fg = 255 - background
+    backgrounds = {n: np.full((8, 768, 1024), background, np.uint8) for n in rig.names}
+    frames = {}
+    for n in rig.names:
+        drawn = _draw_tube(np.zeros((768, 1024), np.float32), rig[n], pts, radii, level=255.0)
+        frames[n] = np.where(drawn > 127, fg, background).astype(np.uint8)
+    r = prepare("fast", rig, backgrounds)(frames)
+    e = backbone_errors(r.points_world_mm, _visible(rig, pts))
+    assert _px(rig, e["mean_error_mm"]) < 1.0 and _px(rig, e["tip_error_mm"]) < 3.0, e
+    # A mask without the robot is no camera fault, just no robot.
+    with pytest.raises(FrameError, match=r"^side: no silhouette"):
+        prepare("fast", rig, backgrounds)({n: backgrounds[n][0] for n in rig.names})
+
+
+def _blotches(rng, mean, amplitude, sigma=25.0):
+    noise = cv2.GaussianBlur(rng.standard_normal((768, 1024)).astype(np.float32), (0, 0), sigma)
+    return mean + amplitude * noise / np.abs(noise).max()
+
+
+def test_textured_backdrop_the_tube_fades_into():
+    """A tube of one gray in front of blotches from darker to brighter than it (stretches with no contrast),
+    cameras 100 deg apart and a few degrees off their nominal mounts, lens distortion: the backbone follows
+    the tube to its tip instead of stopping where it fades, or running off along the texture."""
+    rng = np.random.default_rng(5)
+    rig = _rig(100.0, dist=(-0.12, 0.05, 0.0, 0.0, 0.0), tilt_mm=15.0)
+    textures = {n: _blotches(rng, 150.0, 70.0) for n in rig.names}  # 80-220 gray levels
+
+    def shot(n, gain):
+        return textures[n] * gain + rng.normal(0.0, 2.5, (768, 1024)).astype(np.float32)
+
+    backgrounds = {n: np.stack([np.clip(shot(n, 1 + 0.03 * rng.standard_normal()), 0, 255).astype(np.uint8) for _ in range(8)])
+                   for n in rig.names}
+    s, pts, radii = _robot(length=85.0, straight=40.0, bend_axis=(0.0, 0.8, 0.6))
+    frames = {n: np.clip(_draw_tube(shot(n, 1.02), rig[n], pts, radii, level=85.0), 0, 255).astype(np.uint8)
+              for n in rig.names}
+    r = prepare("fast", rig, backgrounds)(frames)
+    e = backbone_errors(r.points_world_mm, pts)
+    assert _px(rig, e["mean_error_mm"]) < 1.0 and _px(rig, e["tip_error_mm"]) < 3.0, e
