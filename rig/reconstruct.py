@@ -304,7 +304,7 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
                 if truth is not None:
                     if "backbone_world_mm" not in truth:
                         raise SessionError(f"{session.dir / 'truth' / f'{fr.index:06d}.npz'}: no backbone_world_mm array")
-                    errs = backbone_errors(pts, truth["backbone_world_mm"])
+                    errs = backbone_errors(pts, truth["backbone_world_mm"], session.rig)
                     rec.update({k: _finite(v) for k, v in errs.items()})
             except Exception as exc:  # noqa: BLE001 - a bad truth file costs the score, not the frame
                 rec["note"] = f"not scored: {_one_line(exc)}"

@@ -40,7 +40,7 @@ __all__ = ["SILENT_WRONG_PX", "CLASS_KEYS", "write_suite", "frame_footprint_mm",
 SILENT_WRONG_PX = 10.0
 
 #: Scene classes the tables are broken down by (keys of the generator's ``classes``).
-CLASS_KEYS = ("backdrop", "camera_angle", "resolution", "base", "tubes", "input")
+CLASS_KEYS = ("backdrop", "contrast", "camera_angle", "resolution", "base", "tubes", "input")
 
 #: Keys of each method's entry in ``--json`` output (always present, None when undefined).
 JSON_KEYS = ("frames", "ok", "flagged", "failed", "silent_wrong", "good_flagged", "mean_error_px_median",

@@ -53,3 +53,32 @@ def test_degenerate_inputs():
     np.testing.assert_allclose(point_to_polyline_distances(np.array([[0.5, 1.0, 0.0]]), dup), [1.0])
     with pytest.raises(ValueError):
         backbone_errors(np.zeros((0, 3)), one)
+
+
+def test_only_what_both_cameras_see_is_scored():
+    """A robot entering across the border: its unseen part is neither required nor judged."""
+    from recon.camera import Camera, look_at
+    from recon.metrics import seen_by_all
+    from recon.rigcal import RigCalibration
+
+    K = np.array([[1000.0, 0, 319.5], [0, 1000.0, 239.5], [0, 0, 1.0]])
+    side = Camera("side", 640, 480, K, np.zeros(5), look_at([0, -300, 0], [0, 0, 0], [0, 0, -1]))
+    top = Camera("top", 640, 480, K, np.zeros(5), look_at([0, 0, 300], [0, 0, 0], [0, -1, 0]))
+    rig = RigCalibration(cameras={"side": side, "top": top}, base_point_world_mm=np.array([-200.0, 0, 0]),
+                         insertion_axis_world=np.array([1.0, 0, 0]))
+    x = np.linspace(-200.0, 80.0, 281)  # the views span x within about +-96 mm
+    truth = np.stack([x, np.zeros_like(x), np.zeros_like(x)], 1)
+    seen = seen_by_all(rig, truth)
+    assert not seen[0] and seen[-1] and 0.3 < seen.mean() < 0.8
+    # Exactly the seen part, plus a wrong straight extrapolation to the unseen base.
+    visible = truth[seen]
+    wrong_base = np.array([[-200.0, 40.0, 0.0]])
+    recon = np.concatenate([wrong_base, visible])
+    e = backbone_errors(recon, truth, rig)
+    assert e["mean_error_mm"] < 1e-9 and e["max_error_mm"] < 1e-9
+    assert e["scored_fraction"] == pytest.approx(seen.mean())
+    # Without the rig the unseen part counts: the same reconstruction reads 40 mm wrong.
+    assert backbone_errors(recon, truth)["max_error_mm"] > 30.0
+    # A reconstruction that stops short inside the view is still penalized.
+    short = visible[: len(visible) // 2]
+    assert backbone_errors(short, truth, rig)["max_error_mm"] > 40.0

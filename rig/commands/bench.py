@@ -198,7 +198,7 @@ def run_method(name: str, data: dict, params=None, repeats: int = 3, budget_s: f
             if p == 0:
                 truth = data["truths"][i]
                 if truth is not None:
-                    errors[i] = backbone_errors(result.points_world_mm, truth)
+                    errors[i] = backbone_errors(result.points_world_mm, truth, data["rig"])
                 if getattr(result, "jump_flag", False):
                     extras.setdefault("jump_flags", []).append(i)
     ok = np.isfinite(best)
