@@ -242,8 +242,11 @@ def view_problem(scene: Scene, base: str, backbones: list | None = None) -> str 
 
 
 # ----------------------------------------------------------------------------- one draw
-def draw_wide(rng: np.random.Generator, name: str, classes: dict) -> dict | None:
-    """One draw of the "wide" suite with the given class labels: the TOML dict, or None to redraw."""
+def draw_wide(rng: np.random.Generator, name: str, classes: dict, max_pixels: int | None = None) -> dict | None:
+    """One draw of the "wide" suite with the given class labels: the TOML dict, or None to redraw.
+
+    ``max_pixels`` limits the sensor sizes drawn (width x height, px); None draws them all.
+    """
     n_tubes = int(classes["tubes"])
     base = classes["base"]
     masks = classes["input"] == "masks"
@@ -251,7 +254,8 @@ def draw_wide(rng: np.random.Generator, name: str, classes: dict) -> dict | None
     if drawn is None:
         return None
     tube_tables, steps = drawn
-    width, height = IMAGE_SIZES[int(rng.integers(len(IMAGE_SIZES)))]
+    sizes = [wh for wh in IMAGE_SIZES if max_pixels is None or wh[0] * wh[1] <= max_pixels]
+    width, height = sizes[int(rng.integers(len(sizes)))]
     rgb = (not masks) and rng.random() < 0.5
     pixel_um = float(_PIXEL_UM[int(rng.integers(len(_PIXEL_UM)))])
     data = {
@@ -373,7 +377,7 @@ def _draw_classes(rng) -> dict:
     }
 
 
-def generate_suite(suite: str, n: int, seed: int) -> list:
+def generate_suite(suite: str, n: int, seed: int, max_pixels: int | None = None) -> list:
     """``n`` generated scenes of ``suite`` (``"wide"``), reproducible from ``seed``.
 
     Parameters
@@ -385,6 +389,9 @@ def generate_suite(suite: str, n: int, seed: int) -> list:
     seed : int
         Seed (>= 0); scene k draws from ``SeedSequence([seed, k])``, so a suite's first
         scenes do not depend on ``n``.
+    max_pixels : int, optional
+        Draw only sensors of at most this many pixels (quick test profiles); everything
+        else is drawn from the same ranges. None (default) draws 0.3-5 MP.
 
     Returns
     -------
@@ -397,13 +404,15 @@ def generate_suite(suite: str, n: int, seed: int) -> list:
         raise ValueError(f"n must be an integer >= 1, got {n!r}")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    if max_pixels is not None and max_pixels < IMAGE_SIZES[0][0] * IMAGE_SIZES[0][1]:
+        raise ValueError(f"max_pixels must be >= {IMAGE_SIZES[0][0] * IMAGE_SIZES[0][1]} (the smallest sensor), got {max_pixels!r}")
     out = []
     for k in range(n):
         rng = np.random.default_rng(np.random.SeedSequence([seed, k]))
         name = f"{suite}-{seed}-{k}"
         classes = _draw_classes(rng)
         for _ in range(_MAX_ATTEMPTS):
-            data = draw_wide(rng, name, classes)
+            data = draw_wide(rng, name, classes, max_pixels)
             if data is not None:
                 break
         else:  # pragma: no cover - would mean the ranges cannot be met
