@@ -47,16 +47,18 @@ JSON_KEYS = ("frames", "ok", "flagged", "failed", "silent_wrong", "good_flagged"
              "tip_error_px_median", "ms_per_pair_median")
 
 _CSV_FIELDS = ("scene", "method", "frame", "status", "reason", *CLASS_KEYS, "footprint_mm", "mean_error_mm",
-               "max_error_mm", "tip_error_mm", "mean_error_px", "max_error_px", "tip_error_px", "ms",
+               "max_error_mm", "tip_error_mm", "mean_error_px", "max_error_px", "tip_error_px", "voxel_mm",
+               "mean_error_voxels", "ms",
                "silent_wrong", "selfcheck_reason")
 
 
 # ----------------------------------------------------------------------------- scenes
-def write_suite(suite: str, n: int, seed: int, directory: Path) -> list:
+def write_suite(suite: str, n: int, seed: int, directory: Path, max_pixels: int | None = None) -> list:
     """Write the suite's scene TOMLs into ``directory``; returns ``[(path, classes), ...]`` in draw order.
 
     A file is rewritten only when its content changed, so render caches keyed by
-    the file's bytes stay valid across runs of the same suite.
+    the file's bytes stay valid across runs of the same suite. ``max_pixels``
+    bounds the sensor sizes drawn (see :func:`twin.scenegen.generate_suite`).
     """
     import tomli_w
 
@@ -64,7 +66,7 @@ def write_suite(suite: str, n: int, seed: int, directory: Path) -> list:
 
     directory.mkdir(parents=True, exist_ok=True)
     out = []
-    for g in generate_suite(suite, n, seed):
+    for g in generate_suite(suite, n, seed, max_pixels=max_pixels):
         path = directory / f"{g.name}.toml"
         text = tomli_w.dumps(g.data)
         if not path.exists() or path.read_text() != text:
@@ -107,6 +109,9 @@ def score_run(summary: dict, session, scene: str, method: str, classes: dict) ->
             v = rec.get(key)
             row[key] = v
             row[key.replace("_mm", "_px")] = v / px if v is not None and np.isfinite(px) else None
+        voxel = rec.get("voxel_size_mm")
+        row["voxel_mm"] = max(voxel) if voxel else None
+        row["mean_error_voxels"] = row["mean_error_mm"] / row["voxel_mm"] if voxel and row["mean_error_mm"] is not None else None
         row["silent_wrong"] = bool(rec["status"] == "ok" and row["max_error_px"] is not None
                                    and row["max_error_px"] > SILENT_WRONG_PX)
         rows.append(row)
@@ -139,6 +144,7 @@ def aggregate(rows: list) -> dict:
         "mean_error_mm_median": _stat(done, "mean_error_mm", np.median),
         "max_error_mm_max": _stat(done, "max_error_mm", np.max),
         "tip_error_mm_median": _stat(done, "tip_error_mm", np.median),
+        "mean_error_voxels_median": _stat(done, "mean_error_voxels", np.median),
         "ms_per_pair_median": _stat(done, "ms", np.median),
     }
 
@@ -170,7 +176,7 @@ def _register_peer(name: str) -> None:
 
 
 def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache_dir: Path, selfcheck=True,
-              quiet: bool = False) -> dict:
+              quiet: bool = False, max_pixels: int | None = None) -> dict:
     """Render (cached), reconstruct and score every scene of the suite with every method.
 
     Parameters
@@ -185,6 +191,8 @@ def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache
         Scene TOMLs and rendered sessions, reused across runs.
     selfcheck : bool
         Apply the self-check (False measures the methods as they would be reported without it).
+    max_pixels : int, optional
+        Draw only sensors of at most this many pixels (a quick set; the other ranges unchanged).
 
     Returns
     -------
@@ -199,7 +207,8 @@ def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache
     from twin.scene import load_scene
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    scenes = write_suite(suite, n, seed, cache_dir / f"{suite}-seed{seed}-scenes")
+    tag = f"-max{max_pixels}" if max_pixels else ""
+    scenes = write_suite(suite, n, seed, cache_dir / f"{suite}-seed{seed}{tag}-scenes", max_pixels)
     sessions = []
     progress = Progress(enabled=not quiet)
     for k, (path, classes) in enumerate(scenes):
@@ -224,7 +233,7 @@ def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache
             for k, (scene, session_dir, classes) in enumerate(sessions):
                 run_dir = out_dir / "runs" / name / scene
                 try:
-                    summary = reconstruct_session(session_dir, run_dir, name,
+                    summary = reconstruct_session(session_dir, run_dir, name, params=_robot_params(name, session_dir),
                                                   selfcheck=SelfCheckParams() if selfcheck else None)
                 except ValueError as exc:  # set-up refused for the whole scene: every frame failed
                     summary = {"per_frame": [{"frame": f.index, "status": "failed", "reason": str(exc).splitlines()[0]}
@@ -238,13 +247,32 @@ def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache
             results[name] = aggregate([r for r in rows if r["method"] == name])
             results[name]["wall_s"] = time.perf_counter() - t0
     progress.close()
-    report = {"suite": suite, "n": n, "seed": seed, "selfcheck": bool(selfcheck), "methods": results,
+    report = {"suite": suite, "n": n, "seed": seed, "max_pixels": max_pixels, "selfcheck": bool(selfcheck), "methods": results,
               "classes": {m: _by_class([r for r in rows if r["method"] == m]) for m in results if "skipped" not in results[m]},
               "worst": _worst(rows)}
     from rig.reconstruct import write_json_atomic
 
     write_json_atomic(out_dir / "summary.json", report)
     return report
+
+
+def _robot_params(method: str, session_dir):
+    """The method's defaults with the session's tube radii, as ``ctr-bench reconstruct`` runs it.
+
+    The tube radii describe the robot, not the method; with the defaults
+    (0.8/0.5 mm) the paper method sized its erosions for tubes up to twice the
+    drawn robot's.
+    """
+    from dataclasses import replace
+
+    from recon.methods import get_method
+    from rig.session import Session
+
+    params = get_method(method).params_type()
+    radii = Session(session_dir).robot_tube_radii_mm
+    if radii is not None and hasattr(params, "outer_tube_radius_mm") and hasattr(params, "inner_tube_radius_mm"):
+        params = replace(params, outer_tube_radius_mm=radii[0], inner_tube_radius_mm=radii[1])
+    return params
 
 
 def _worst(rows: list, k: int = 5) -> list:

@@ -316,8 +316,11 @@ def _run_suite(args) -> int:
     pin_one_core()
     methods = [m.strip() for m in args.methods.split(",")] if args.methods else list(METHODS)
     out = Path(args.out) if args.out else Path("out") / f"bench-{args.suite}-n{args.n}-seed{args.seed}"
+    if args.max_megapixels is not None and args.max_megapixels <= 0:
+        raise ValueError(f"--max-megapixels must be > 0, got {args.max_megapixels}")
+    max_pixels = int(args.max_megapixels * 1e6) if args.max_megapixels else None
     report = widebench.run_suite(args.suite, args.n, args.seed, methods, out, Path(args.cache_dir),
-                                 selfcheck=not args.no_selfcheck, quiet=args.quiet)
+                                 selfcheck=not args.no_selfcheck, quiet=args.quiet, max_pixels=max_pixels)
     if args.json:
         print(widebench.dump(report))
         return 0
@@ -400,5 +403,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=1, help="--suite: seed of the scene draw (default 1, the reported set)")
     p.add_argument("--out", default=None, help="--suite: where frames.csv, summary.json and the runs go "
                    "(default out/bench-SUITE-nN-seedS)")
+    p.add_argument("--max-megapixels", type=float, default=None,
+                   help="--suite: draw only sensors up to this size (a quick set; other ranges unchanged)")
     p.add_argument("--no-selfcheck", action="store_true", help="--suite: report frames as the methods return them, unchecked")
     p.set_defaults(func=_run)
