@@ -104,6 +104,16 @@ class SelfCheckParams:
     max_roi_growth : int
         How many times the region of interest may grow (each time doubling
         towards the sides where the robot's foreground reaches its edge).
+    unseen_depths, unseen_slope, unseen_depth_mm, unseen_border_px, unseen_samples
+        Robot foreground of one view that no other camera can see need not be
+        explained (where the robot enters across a border of only this view,
+        no method can triangulate it). An unexplained pixel ``d`` px from the
+        nearest reprojected backbone sample (depth ``z``) is back-projected at
+        ``unseen_depths`` depths across ``z +- (unseen_slope * d * z / f +
+        unseen_depth_mm)`` (the tube between them inclined up to 45 deg out of
+        the image plane, plus a few tube diameters) and is unseen when none of
+        those points is inside another camera's image (``unseen_border_px`` in
+        from its border). Up to ``unseen_samples`` pixels are tested.
     """
 
     jitter_window_px: int = 1
@@ -121,6 +131,11 @@ class SelfCheckParams:
     min_profile_fraction: float = 0.2
     roi_margin_px: int = 16
     max_roi_growth: int = 4
+    unseen_depths: int = 16
+    unseen_slope: float = 1.0
+    unseen_depth_mm: float = 2.0
+    unseen_samples: int = 400
+    unseen_border_px: float = 0.0
 
     def __post_init__(self):
         if int(self.jitter_window_px) != self.jitter_window_px or self.jitter_window_px < 0:
@@ -142,6 +157,7 @@ class _ViewModel:
     lo: np.ndarray  # (H, W) float32, below this is foreground
     hi: np.ndarray  # (H, W) float32, above this is foreground
     behind: np.ndarray | None  # (H, W) bool, behind the robot base (ignored), or None
+    binary: bool = False  # background frames are a mask (only 0 and 1, or only 0 and 255)
 
 
 @dataclass(frozen=True, eq=False)
@@ -303,6 +319,11 @@ def prepare_selfcheck(rig: RigCalibration, background_frames: dict, params: Self
             raise ValueError(f"{name}: need at least 2 background frames as (N, H, W), got shape {stack.shape}")
         if stack.shape[1:] != (cam.height, cam.width):
             raise ValueError(f"{name}: background frames are {stack.shape[2]}x{stack.shape[1]} but the camera is {cam.width}x{cam.height}")
+        # Masks come as 0/1 or 0/255: a 0/1 mask is brought to 0/255 here and per frame
+        # (check_backbone), else the robot (1) would lie within the band of a 0 background.
+        binary = bool(stack.max() <= 1 or np.all((stack == 0) | (stack == 255)))
+        if binary:
+            stack = np.where(stack > 0, 255, 0).astype(np.uint8)
         f = _normalized_stack(stack)
         mean = f.mean(axis=0)
         # Temporal noise, smoothed: 6 frames give a poor per-pixel estimate.
@@ -316,7 +337,7 @@ def prepare_selfcheck(rig: RigCalibration, background_frames: dict, params: Self
             behind = np.zeros(cam.height * cam.width, bool)
             behind[idx] = True
             behind = behind.reshape(cam.height, cam.width)
-        views[name] = _ViewModel(mean.astype(np.float32), lo.astype(np.float32), hi.astype(np.float32), behind)
+        views[name] = _ViewModel(mean.astype(np.float32), lo.astype(np.float32), hi.astype(np.float32), behind, binary)
     return SelfCheckModel(rig, views)
 
 
@@ -355,6 +376,9 @@ def foreground_roi(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.n
         fg &= ~behind
     return fg
 
+
+#: Development aid: set to a dict and each judged view's intermediates (region, foreground, band) are kept in it.
+_DEBUG = None
 
 # ----------------------------------------------------------------------------- reprojection
 def _dense_projection(camera, points_world_mm: np.ndarray, step_px: float) -> tuple:
@@ -473,11 +497,56 @@ def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_
     return out
 
 
+def _unseen_share(camera, others: list, ys: np.ndarray, xs: np.ndarray, uv_bb: np.ndarray, depth_bb: np.ndarray,
+                  params: SelfCheckParams) -> float:
+    """Share of pixels (ys, xs) of ``camera`` that no camera of ``others`` can see at any plausible depth.
+
+    The tube is continuous: a pixel of robot foreground ``d`` px from the
+    nearest reprojected backbone sample (depth ``z``) lies at a depth within
+    ``z +- (unseen_slope * d * z / f + unseen_depth_mm)`` -- the tube between
+    them inclined at most ``atan(unseen_slope)`` out of the image plane. Each
+    pixel is back-projected at ``unseen_depths`` depths across that range and
+    the points projected into the other cameras; a pixel is unseen when none
+    of its points lands in front of, and inside the image of (``unseen_border_px``
+    in from the border), any of them. Up to ``unseen_samples`` pixels (every
+    k-th) stand for all.
+    """
+    n = ys.size
+    if n == 0 or not others:
+        return 0.0
+    k = max(1, int(math.ceil(n / params.unseen_samples)))
+    uv = np.stack([xs[::k], ys[::k]], axis=1).astype(np.float64)
+    # Nearest backbone sample of each pixel (the backbone subsampled to ~4 px).
+    step = max(1, len(uv_bb) // 256)
+    bb, zb = uv_bb[::step], depth_bb[::step]
+    d2 = ((uv[:, None, :] - bb[None, :, :]) ** 2).sum(axis=2)
+    j = np.argmin(d2, axis=1)
+    z0 = zb[j]
+    f_px = math.sqrt(camera.K[0, 0] * camera.K[1, 1])
+    dz = params.unseen_slope * np.sqrt(d2[np.arange(len(uv)), j]) * z0 / f_px + params.unseen_depth_mm
+    t = np.linspace(-1.0, 1.0, int(params.unseen_depths))
+    z = np.maximum(z0[:, None] + dz[:, None] * t[None, :], 1e-3)
+    xy = camera.pixels_to_normalized(uv)
+    pc = np.concatenate([xy[:, None, :] * z[:, :, None], z[:, :, None]], axis=2)
+    T = camera.T_world_cam
+    pw = pc.reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+    seen = np.zeros(pw.shape[0], bool)
+    for cam in others:
+        uvo, d = cam.project(pw)
+        ok = np.all(np.isfinite(uvo), axis=1) & (d > 1e-6)
+        seen |= ok & cam.in_image(np.where(ok[:, None], uvo, -1e9), params.unseen_border_px)
+    return float(np.mean(~seen.reshape(len(xy), z.shape[1]).any(axis=1)))
+
+
 def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.ndarray, radii_mm: tuple,
-                params: SelfCheckParams) -> dict:
-    """The three figures of one view (None where not measured)."""
+                params: SelfCheckParams, others: list = ()) -> dict:
+    """The three figures of one view (None where not measured).
+
+    ``others``: the rig's other cameras; robot foreground that none of them can
+    see (outside their images at every plausible depth) need not be explained.
+    """
     none = {"unexplained_fraction": None, "unexplained_px": None, "off_foreground_fraction": None, "centerline_rms_px": None,
-            "visible_px": 0.0}
+            "visible_px": 0.0, "unseen_px": None}
     uv, depth = _dense_projection(camera, points_world_mm, params.sample_step_px)
     finite = np.all(np.isfinite(uv), axis=1) & (depth > 1e-6)
     vis = finite & camera.in_image(np.where(finite[:, None], uv, -1e9))
@@ -532,12 +601,20 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
         roi = [max(0, x0 - dx) if grow[0] else x0, max(0, y0 - dy) if grow[1] else y0,
                min(W, x1 + dx) if grow[2] else x1, min(H, y1 + dy) if grow[3] else y1]
     x0, y0 = roi[0], roi[1]
+    if _DEBUG is not None:
+        _DEBUG[camera.name if hasattr(camera, "name") else len(_DEBUG)] = dict(roi=tuple(roi), fg=fg, band=band, labels=labels, touching=touching, gray=gray, uv=uv)
     is_robot = np.zeros(n_lab, bool)
     is_robot[touching] = True
     on_robot = is_robot[labels]
     # (a) as tube length: unexplained area over the innermost tube's width (the
     # thinnest reading, so a missing tip counts fully), against the length drawn.
-    unexplained_px = float((on_robot & ~band).sum()) / (2.0 * max(float(np.median(r_in[vis])), 0.5))
+    # Foreground no other camera can see (the robot entering across a border of only this
+    # view) cannot be triangulated by any method: it is not required.
+    ys, xs = np.nonzero(on_robot & ~band)
+    unseen = _unseen_share(camera, list(others), ys + y0, xs + x0, uvv, depth[vis], params)
+    px_width = 2.0 * max(float(np.median(r_in[vis])), 0.5)
+    unseen_px = unseen * ys.size / px_width
+    unexplained_px = (1.0 - unseen) * ys.size / px_width
     unexplained = unexplained_px / (unexplained_px + none["visible_px"])
     # (b) is there foreground within the tolerance of each in-image sample?
     uvr = uvv - [x0, y0]
@@ -550,7 +627,7 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     enough = good.sum() >= max(10.0, params.min_profile_fraction * offs.size)
     rms = float(np.sqrt(np.mean(offs[good] ** 2))) if enough else None
     return {"unexplained_fraction": unexplained, "unexplained_px": unexplained_px, "off_foreground_fraction": off,
-            "centerline_rms_px": rms, "visible_px": none["visible_px"]}
+            "centerline_rms_px": rms, "visible_px": none["visible_px"], "unseen_px": unseen_px}
 
 
 def _verdict(figures: dict, params: SelfCheckParams) -> str | None:
@@ -619,7 +696,10 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
         gray = _gray(images[name], name)
         if gray.shape != (cam.height, cam.width):
             raise ValueError(f"{name}: image is {gray.shape[1]}x{gray.shape[0]} but the camera is {cam.width}x{cam.height}")
-        figures[name] = _judge_view(view, cam, gray, pts, (r_out, r_in), params)
+        if view.binary and gray.max() <= 1:
+            gray = gray * np.uint8(255)  # a 0/1 mask
+        others = [model.rig[o] for o in model.rig.names if o != name]
+        figures[name] = _judge_view(view, cam, gray, pts, (r_out, r_in), params, others)
     reason = _verdict(figures, params)
     if reason is None and not any(f["unexplained_fraction"] is not None for f in figures.values()):
         reason = "the reprojected backbone is in no camera's image"

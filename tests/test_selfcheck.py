@@ -90,7 +90,7 @@ def _masks(rendered, robot_value: int, background_value: int):
     return images, bg
 
 
-@pytest.mark.parametrize("robot_value, background_value", [(255, 0), (0, 255)])
+@pytest.mark.parametrize("robot_value, background_value", [(255, 0), (0, 255), (1, 0), (0, 1)])
 def test_masks_only_pass_with_the_true_backbone_and_flag_a_wrong_one(rendered, robot_value, background_value):
     images, bg = _masks(rendered, robot_value, background_value)
     with warnings.catch_warnings():
