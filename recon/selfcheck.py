@@ -158,6 +158,7 @@ class _ViewModel:
     hi: np.ndarray  # (H, W) float32, above this is foreground
     behind: np.ndarray | None  # (H, W) bool, behind the robot base (ignored), or None
     binary: bool = False  # background frames are a mask (only 0 and 1, or only 0 and 255)
+    keep: np.ndarray | None = None  # (H, W) uint8, 0 behind the robot base, 255 elsewhere; None: nothing behind
 
 
 @dataclass(frozen=True, eq=False)
@@ -337,7 +338,8 @@ def prepare_selfcheck(rig: RigCalibration, background_frames: dict, params: Self
             behind = np.zeros(cam.height * cam.width, bool)
             behind[idx] = True
             behind = behind.reshape(cam.height, cam.width)
-        views[name] = _ViewModel(mean.astype(np.float32), lo.astype(np.float32), hi.astype(np.float32), behind, binary)
+        keep = None if behind is None else np.where(behind, 0, 255).astype(np.uint8)
+        views[name] = _ViewModel(mean.astype(np.float32), lo.astype(np.float32), hi.astype(np.float32), behind, binary, keep)
     return SelfCheckModel(rig, views)
 
 
@@ -359,23 +361,30 @@ def foreground_roi(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.n
     (h, w) bool
         Foreground; False behind the robot base.
     """
+    return _foreground_u8(view, gray, roi, None if exclude is None else np.asarray(exclude, np.uint8)) > 0
+
+
+def _foreground_u8(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.ndarray | None = None) -> np.ndarray:
+    """:func:`foreground_roi` as a (h, w) uint8 mask (255 foreground), in OpenCV passes; ``exclude`` nonzero = left out."""
     x0, y0, x1, y1 = roi
-    img = gray[y0:y1, x0:x1].astype(np.float32)
+    img = gray[y0:y1, x0:x1]
     mean = view.mean[y0:y1, x0:x1]
     h, w = img.shape
     step = max(1, int(math.sqrt(h * w / _GAIN_SAMPLES)))
-    sel = np.ones((h, w), bool) if exclude is None else ~exclude
-    behind = None if view.behind is None else view.behind[y0:y1, x0:x1]
-    if behind is not None:
-        sel &= ~behind
-    sub = sel[::step, ::step]
+    sub = np.ones((len(range(0, h, step)), len(range(0, w, step))), bool)
+    if exclude is not None:
+        sub &= exclude[::step, ::step] == 0
+    if view.behind is not None:
+        sub &= ~view.behind[y0:y1:step, x0:x1:step]
     gain, offset = fit_gain_offset(img[::step, ::step][sub], mean[::step, ::step][sub])
-    norm = (img - offset) / gain
-    fg = (norm < view.lo[y0:y1, x0:x1]) | (norm > view.hi[y0:y1, x0:x1])
-    if behind is not None:
-        fg &= ~behind
+    norm = cv2.addWeighted(img, 1.0 / gain, img, 0.0, -offset / gain, dtype=cv2.CV_32F)
+    fg = cv2.bitwise_not(cv2.inRange(norm, view.lo[y0:y1, x0:x1], view.hi[y0:y1, x0:x1]))
+    if view.keep is not None:
+        fg = cv2.bitwise_and(fg, view.keep[y0:y1, x0:x1])
     return fg
 
+
+_CLOSE_KERNEL = np.ones((3, 3), np.uint8)
 
 #: Development aid: set to a dict and each judged view's intermediates (region, foreground, band) are kept in it.
 _DEBUG = None
@@ -428,7 +437,7 @@ def _cut_tip_cap(band: np.ndarray, uv_roi: np.ndarray, r_band_px: float, tol_px:
         return
     yy, xx = np.mgrid[y0:y1, x0:x1]
     beyond = (xx - tip[0]) * d[0] + (yy - tip[1]) * d[1] > tol_px
-    band[y0:y1, x0:x1] &= ~beyond
+    band[y0:y1, x0:x1][beyond] = 0
 
 
 def _near_foreground(fg: np.ndarray, uv: np.ndarray, tol_px: float) -> np.ndarray:
@@ -516,10 +525,13 @@ def _unseen_share(camera, others: list, ys: np.ndarray, xs: np.ndarray, uv_bb: n
         return 0.0
     k = max(1, int(math.ceil(n / params.unseen_samples)))
     uv = np.stack([xs[::k], ys[::k]], axis=1).astype(np.float64)
-    # Nearest backbone sample of each pixel (the backbone subsampled to ~4 px).
-    step = max(1, len(uv_bb) // 256)
+    # Nearest backbone sample of each pixel (the backbone subsampled to at most 64 samples:
+    # the depth changes little between them, and the distance is rounded up by the spacing).
+    step = max(1, int(math.ceil(len(uv_bb) / 64)))
     bb, zb = uv_bb[::step], depth_bb[::step]
-    d2 = ((uv[:, None, :] - bb[None, :, :]) ** 2).sum(axis=2)
+    du = uv[:, 0:1] - bb[None, :, 0]
+    dv = uv[:, 1:2] - bb[None, :, 1]
+    d2 = du * du + dv * dv
     j = np.argmin(d2, axis=1)
     z0 = zb[j]
     f_px = math.sqrt(camera.K[0, 0] * camera.K[1, 1])
@@ -577,16 +589,18 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
         # Sub-pixel polyline (4 fractional bits); the tube drawn with its outermost radius plus the tolerance.
         pl = np.rint((poly - [x0, y0]) * 16).astype(np.int32)
         cv2.polylines(band, [pl.reshape(-1, 1, 2)], False, 1, thickness=thickness, lineType=cv2.LINE_8, shift=4)
-        band = band.astype(bool)
         _cut_tip_cap(band, uv[finite] - [x0, y0], r_band, params.explain_tolerance_px)
-        fg = foreground_roi(view, gray, tuple(roi), exclude=band)
+        fg = _foreground_u8(view, gray, tuple(roi), exclude=band)
         # Close 1-px cracks (specular highlights as bright as the backdrop) before measuring runs and regions.
-        fg = cv2.morphologyEx(fg.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
-        if view.behind is not None:
-            fg &= ~view.behind[y0:y1, x0:x1]
-        n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(fg.astype(np.uint8), connectivity=8)
-        touching = np.unique(labels[band & fg])
-        touching = touching[touching > 0]
+        fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, _CLOSE_KERNEL)
+        if view.keep is not None:
+            fg = cv2.bitwise_and(fg, view.keep[y0:y1, x0:x1])
+        n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
+        band_px = cv2.findNonZero(band)
+        band_px = np.zeros((0, 2), np.int32) if band_px is None else band_px.reshape(-1, 2)
+        band_lab = labels[band_px[:, 1], band_px[:, 0]]
+        band_lab = band_lab[band_lab > 0]
+        touching = np.unique(band_lab)
         grow = [False] * 4
         for lab in touching:
             lx, ly, lw, lh = stats[lab, :4]
@@ -602,19 +616,34 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
                min(W, x1 + dx) if grow[2] else x1, min(H, y1 + dy) if grow[3] else y1]
     x0, y0 = roi[0], roi[1]
     if _DEBUG is not None:
-        _DEBUG[camera.name if hasattr(camera, "name") else len(_DEBUG)] = dict(roi=tuple(roi), fg=fg, band=band, labels=labels, touching=touching, gray=gray, uv=uv)
-    is_robot = np.zeros(n_lab, bool)
-    is_robot[touching] = True
-    on_robot = is_robot[labels]
+        _DEBUG[camera.name] = dict(roi=tuple(roi), fg=fg > 0, band=band > 0, labels=labels, touching=touching, gray=gray, uv=uv)
     # (a) as tube length: unexplained area over the innermost tube's width (the
     # thinnest reading, so a missing tip counts fully), against the length drawn.
-    # Foreground no other camera can see (the robot entering across a border of only this
-    # view) cannot be triangulated by any method: it is not required.
-    ys, xs = np.nonzero(on_robot & ~band)
-    unseen = _unseen_share(camera, list(others), ys + y0, xs + x0, uvv, depth[vis], params)
+    # Every foreground pixel in the band belongs to a touching component, so the
+    # unexplained area is theirs less those.
+    n_unexplained = int(stats[touching, cv2.CC_STAT_AREA].sum()) - int(band_lab.size)
     px_width = 2.0 * max(float(np.median(r_in[vis])), 0.5)
-    unseen_px = unseen * ys.size / px_width
-    unexplained_px = (1.0 - unseen) * ys.size / px_width
+    unexplained_px = n_unexplained / px_width
+    unseen_px = None
+    if others and unexplained_px > 0.5 * params.max_unexplained_px:
+        # Foreground no other camera can see (the robot entering across a border of only this
+        # view) cannot be triangulated by any method: it is not required. Measured only where
+        # it could matter (it is the costly part).
+        ys, xs = [], []
+        for lab in touching:
+            lx, ly, lw, lh = (int(v) for v in stats[lab, :4])
+            m = (labels[ly:ly + lh, lx:lx + lw] == lab).view(np.uint8)
+            m[band[ly:ly + lh, lx:lx + lw] != 0] = 0
+            p = cv2.findNonZero(m)
+            if p is not None:
+                p = p.reshape(-1, 2)
+                xs.append(p[:, 0] + lx)
+                ys.append(p[:, 1] + ly)
+        ys = np.concatenate(ys) if ys else np.zeros(0, int)
+        xs = np.concatenate(xs) if xs else np.zeros(0, int)
+        unseen = _unseen_share(camera, list(others), ys + y0, xs + x0, uvv, depth[vis], params)
+        unseen_px = unseen * unexplained_px
+        unexplained_px -= unseen_px
     unexplained = unexplained_px / (unexplained_px + none["visible_px"])
     # (b) is there foreground within the tolerance of each in-image sample?
     uvr = uvv - [x0, y0]
