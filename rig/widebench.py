@@ -33,14 +33,18 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SILENT_WRONG_PX", "CLASS_KEYS", "write_suite", "frame_footprint_mm", "score_run", "aggregate",
+__all__ = ["SILENT_WRONG_PX", "CLASS_KEYS", "thinnest_tube_px", "tube_px_class", "write_suite", "frame_footprint_mm", "score_run", "aggregate",
            "run_suite", "format_suite", "JSON_KEYS"]
 
 #: A frame reported ok whose max error exceeds this many pixel footprints is a silent wrong shape.
 SILENT_WRONG_PX = 10.0
 
 #: Scene classes the tables are broken down by (keys of the generator's ``classes``).
-CLASS_KEYS = ("backdrop", "contrast", "camera_angle", "resolution", "base", "tubes", "input")
+CLASS_KEYS = ("backdrop", "contrast", "camera_angle", "resolution", "base", "tubes", "input", "tube_px")
+
+#: Bounds (px) of the ``tube_px`` classes: the thinnest tube's width in the images; both
+#: methods refuse tubes under 4 px (docs/envelope.md, "Tube too thin to resolve").
+TUBE_PX_CLASSES = (4.0, 6.0)
 
 #: Keys of each method's entry in ``--json`` output (always present, None when undefined).
 JSON_KEYS = ("frames", "ok", "flagged", "failed", "silent_wrong", "good_flagged", "mean_error_px_median",
@@ -88,6 +92,34 @@ def frame_footprint_mm(rig, backbone_world_mm) -> float:
         sizes.append(z[z > 0] / np.sqrt(cam.K[0, 0] * cam.K[1, 1]))
     sizes = np.concatenate(sizes)
     return float(np.mean(sizes)) if sizes.size else float("nan")
+
+
+def thinnest_tube_px(session) -> float:
+    """Width (px) of the thinnest tube where the robot is seen: the narrower view's median over frame 0's seen backbone."""
+    from recon.metrics import seen_by_all
+
+    tubes = (session.meta.get("robot") or {}).get("tubes") or []
+    truth = session.truth(session.frames[0].index) if session.frames else None
+    if not tubes or truth is None:
+        return float("nan")
+    od_mm = min(float(t["outer_diameter_mm"]) for t in tubes)
+    pts = np.asarray(truth["backbone_world_mm"], float)
+    seen = seen_by_all(session.rig, pts)
+    pts = pts[seen] if seen.any() else pts
+    widths = []
+    for name in session.rig.names:
+        cam = session.rig[name]
+        z = cam.world_to_camera(pts)[:, 2]
+        widths.append(float(np.median(od_mm * np.sqrt(cam.K[0, 0] * cam.K[1, 1]) / z[z > 0])))
+    return min(widths)
+
+
+def tube_px_class(width_px: float) -> str:
+    """``"<4"``, ``"4-6"`` or ``">=6"`` (px), from :data:`TUBE_PX_CLASSES`; ``"?"`` when unknown."""
+    lo, hi = TUBE_PX_CLASSES
+    if not np.isfinite(width_px):
+        return "?"
+    return f"<{lo:g}" if width_px < lo else (f"{lo:g}-{hi:g}" if width_px < hi else f">={hi:g}")
 
 
 # ----------------------------------------------------------------------------- scoring
@@ -212,7 +244,9 @@ def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache
     sessions = []
     progress = Progress(enabled=not quiet)
     for k, (path, classes) in enumerate(scenes):
-        sessions.append((path.stem, cached_session(load_scene(path), 1.0, cache_dir / "sessions"), classes))
+        session_dir = cached_session(load_scene(path), 1.0, cache_dir / "sessions")
+        classes = dict(classes, tube_px=tube_px_class(thinnest_tube_px(Session(session_dir))))
+        sessions.append((path.stem, session_dir, classes))
         progress("render", k + 1, len(scenes))
     available = {}
     for name in methods:
