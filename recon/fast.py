@@ -116,6 +116,12 @@ class FastParams:
     jitter_compensation : bool
         Measure each frame's image shift against the background's static
         edges (camera jitter) and undo it before triangulating.
+    max_tip_mismatch_px : float
+        The tip is one point, in one epipolar plane: when the two views'
+        silhouette ends lie in planes farther apart than this (px along the
+        tube, in the view where that distance is smaller) the frame is
+        refused (:func:`_tip_mismatch`): one view lost the tube short of its
+        tip (or ran on into something else) and the backbone would stop there.
     jump : JumpLimits
         Largest plausible change between consecutive frames.
     """
@@ -146,6 +152,7 @@ class FastParams:
     max_ray_gap_mm: float = 1.0
     max_base_gap_mm: float = 6.0
     jitter_compensation: bool = True
+    max_tip_mismatch_px: float = 8.0
     jump: JumpLimits = field(default_factory=JumpLimits)
 
     def __post_init__(self):
@@ -369,6 +376,41 @@ def _view_samples(model: FastModel, name: str, vc: ViewCenterline, step: float) 
     return _ViewSamples(s=s, uv=uv, dirs=d, phi=model.epipolar.phi(d), cond=conditioning(xy, model.epipoles[name]))
 
 
+def _phi_at(model: FastModel, name: str, uv: np.ndarray) -> np.ndarray:
+    """Epipolar-plane angle (rad) of the rays through undistorted-by-calibration pixels ``uv`` (m, 2) of a view."""
+    cam = model.rig[name]
+    xy = _pixels_to_normalized(cam, np.asarray(uv, float).reshape(-1, 2))
+    R = model.R_world_cam[name]
+    return model.epipolar.phi(xy @ R[:, :2].T + R[:, 2])
+
+
+def _tip_mismatch(model: FastModel, views: dict, sa: _ViewSamples, sb: _ViewSamples):
+    """How far (px along the tube) each view's tip stops short of the other's, through the epipolar planes.
+
+    The tip is one point: its epipolar-plane angle is the same in both views.
+    For each view, the other view's tip angle is mapped onto this view's
+    curve; returns ``{name: px}`` (positive: this view's measured tip lies
+    short of where the other view puts it), 0 where the angle cannot tell
+    (the tube runs along the epipolar lines near the tip).
+    """
+    a, b = model.pair
+    out = {}
+    ends = {}
+    for n, smp in ((a, sa), (b, sb)):
+        vc = views[n]
+        e = vc.end_px - vc.shift_px
+        ph = _phi_at(model, n, np.stack([e, e - vc.tangent_end]))
+        ends[n] = (float(ph[0]), float(ph[0] - ph[1]))  # angle at the tip, change per px along the tube (outward)
+    for n, m in ((a, b), (b, a)):
+        phi_n, rate_n = ends[n]
+        phi_m, _ = ends[m]
+        if abs(rate_n) < 1e-9:
+            out[n] = 0.0
+            continue
+        out[n] = float((phi_m - phi_n) / rate_n)
+    return out
+
+
 def _project(cam, P: np.ndarray):
     if subpixel.USE_NUMBA:
         return project_nb(P, cam.K, cam.dist, cam.T_cam_world)
@@ -511,6 +553,15 @@ class FastReconstructor:
         lap = time.perf_counter()
         detail["rays"] = 1e3 * (lap - t)
         tol = 2.0 / float(rig[a].K[0, 0])  # ~2 px of epipolar angle
+        short = _tip_mismatch(model, views, sa_, sb_)
+        if min(abs(v) for v in short.values()) > params.max_tip_mismatch_px:
+            n_short = [n for n in (a, b) if short[n] > 0]
+            if len(n_short) == 1:
+                n = n_short[0]
+                raise FrameError(f"the views disagree on the tip: {n}'s ends {short[n]:.0f} px along the tube short of where "
+                                 f"{b if n == a else a}'s tip puts it (one view lost the tube before its tip, or followed something else)")
+            raise FrameError(f"the views disagree on the tip by {min(abs(v) for v in short.values()):.0f} px along the tube "
+                             "(epipolar planes of the two silhouette ends): a view followed something else")
         s_a, s_b, da, db, ca, cb, how = _correspond(sa_, sb_, tol)
         X, gap = triangulate_rays(model.epipolar.center_a, da, model.epipolar.center_b, db)
         keep = gap < params.max_ray_gap_mm
