@@ -87,10 +87,13 @@ class PaperParams:
         less than a third.
     difference_blur_px : float
         Gaussian blur (px) of the signed difference image before its absolute
-        value (not in the paper; 0 disables it). At 0.7 px it divides the
-        sensor noise by ~2.5 while tubes a few pixels wide keep their
+        value (not in the paper; 0 disables it). At 0.5 px it divides the
+        sensor noise by ~1.8 while tubes a few pixels wide keep their
         contrast: where a tube is nearly the backdrop's brightness, 10-20 gray
         levels over noise of 4, the paper's per-pixel difference lost it.
+        0.7 px did as well on the wide scenes but merged the jitter lines
+        along the actuation unit's edges into a blob as wide as a tube, so a
+        robot-free frame read as a robot leaving the view.
         Not applied to masks (background frames in [0, 1]): they have no
         noise, and a blurred mask only widens under the low threshold.
     max_dropped_fraction : float
@@ -115,7 +118,7 @@ class PaperParams:
     inner_disk_margin_px: float = CenterlineParams.inner_disk_margin_px
     min_tube_width_px: float = 4.0
     cut_behind_base: bool = True
-    difference_blur_px: float = 0.7
+    difference_blur_px: float = 0.5
     max_dropped_fraction: float = 0.1
     carving: CarvingParams = field(default_factory=CarvingParams)
     backbone: BackboneParams = field(default_factory=BackboneParams)
@@ -453,9 +456,10 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
                                      blur_sigma_px=0.0 if model.full_scale.get(name, 1.0) > 1.0 else params.difference_blur_px)
         lap("background")
         sp = model.silhouette.get(name, params.silhouette)
+        peak_dn = peak * model.full_scale.get(name, 1.0)
         silhouettes[name] = extract_silhouette(
-            diff, sp, name, max_difference=peak * model.full_scale.get(name, 1.0), tube_radii_px=model.tube_radii_px.get(name),
-            low_threshold=hysteresis_threshold(diff, sp), attach_gap_px=model.attach_gap_px.get(name),
+            diff, sp, name, max_difference=peak_dn, tube_radii_px=model.tube_radii_px.get(name),
+            low_threshold=hysteresis_threshold(diff, sp, peak_dn), attach_gap_px=model.attach_gap_px.get(name),
         )
         lap("silhouette")
         disks[name] = {}

@@ -104,6 +104,7 @@ class SilhouetteParams:
     group_gap_fraction: float = 1.0
     hysteresis_sigma: float = 4.0
     hysteresis_floor: float = 0.05
+    hysteresis_floor_dn: float = 4.0
 
     def __post_init__(self):
         bad = [b for b in self.allowed_borders if b not in BORDERS]
@@ -116,7 +117,7 @@ class SilhouetteParams:
         object.__setattr__(self, "allowed_borders", tuple(self.allowed_borders))
 
 
-def hysteresis_threshold(diff: np.ndarray, params: SilhouetteParams) -> float | None:
+def hysteresis_threshold(diff: np.ndarray, params: SilhouetteParams, max_difference_dn: float | None = None) -> float | None:
     """Low threshold (normalized) for :func:`extract_silhouette`, or None (no hysteresis).
 
     ``hysteresis_sigma`` times the noise level of the normalized difference,
@@ -124,12 +125,20 @@ def hysteresis_threshold(diff: np.ndarray, params: SilhouetteParams) -> float | 
     a few percent of it), at least ``hysteresis_floor``, at most the
     threshold. Sampled every 7th pixel: the median of 5 megapixels costs more
     than the rest of the stage.
+
+    With ``max_difference_dn`` (the difference that normalized to 1, gray
+    levels), the low threshold is also at least ``hysteresis_floor_dn`` gray
+    levels: in a frame without the robot the normalizing peak is a jitter edge of
+    a few gray levels, and a purely relative low threshold would grow broad
+    sub-noise ripples of the backdrop into a "robot" reaching the image border.
     """
     if not params.hysteresis_sigma > 0:
         return None
     sample = np.ascontiguousarray(diff).reshape(-1)[::7]
     sigma = float(np.median(sample)) / 0.6745
     low = max(params.hysteresis_sigma * sigma, params.hysteresis_floor)
+    if max_difference_dn is not None and max_difference_dn > 0:
+        low = max(low, params.hysteresis_floor_dn / float(max_difference_dn))
     return low if low < params.threshold else None
 
 

@@ -66,7 +66,9 @@ def test_a_low_threshold_no_longer_joins_the_actuation_unit(dim_session):
             rec(im)
         except FrameError as exc:
             reasons.append(str(exc))
-    assert any("left border" in r for r in reasons), reasons
+    # The region runs off the left border (and, with the hysteresis and pieces grouping of issue 13, it
+    # may flood on to other borders too: the message then names them all).
+    assert any("robot leaves the view at the left" in r for r in reasons), reasons
     from recon.metrics import backbone_errors
 
     rec = prepare("paper", s.rig, s.backgrounds, base)
