@@ -135,7 +135,7 @@ class SelfCheckParams:
     unseen_slope: float = 1.0
     unseen_depth_mm: float = 2.0
     unseen_samples: int = 400
-    unseen_border_px: float = 0.0
+    unseen_border_px: float = 6.0
 
     def __post_init__(self):
         if int(self.jitter_window_px) != self.jitter_window_px or self.jitter_window_px < 0:
@@ -525,9 +525,9 @@ def _unseen_share(camera, others: list, ys: np.ndarray, xs: np.ndarray, uv_bb: n
         return 0.0
     k = max(1, int(math.ceil(n / params.unseen_samples)))
     uv = np.stack([xs[::k], ys[::k]], axis=1).astype(np.float64)
-    # Nearest backbone sample of each pixel (the backbone subsampled to at most 64 samples:
+    # Nearest backbone sample of each pixel (the backbone subsampled to at most 128 samples:
     # the depth changes little between them, and the distance is rounded up by the spacing).
-    step = max(1, int(math.ceil(len(uv_bb) / 64)))
+    step = max(1, int(math.ceil(len(uv_bb) / 128)))
     bb, zb = uv_bb[::step], depth_bb[::step]
     du = uv[:, 0:1] - bb[None, :, 0]
     dv = uv[:, 1:2] - bb[None, :, 1]
@@ -551,11 +551,14 @@ def _unseen_share(camera, others: list, ys: np.ndarray, xs: np.ndarray, uv_bb: n
 
 
 def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.ndarray, radii_mm: tuple,
-                params: SelfCheckParams, others: list = ()) -> dict:
+                params: SelfCheckParams, others: list = (), base_world_mm=None) -> dict:
     """The three figures of one view (None where not measured).
 
     ``others``: the rig's other cameras; robot foreground that none of them can
     see (outside their images at every plausible depth) need not be explained.
+    ``base_world_mm``: the robot base; the straight line from it to the
+    backbone's first point guides the depth of that test for the stretch a
+    method leaves out because only this view sees it.
     """
     none = {"unexplained_fraction": None, "unexplained_px": None, "off_foreground_fraction": None, "centerline_rms_px": None,
             "visible_px": 0.0, "unseen_px": None}
@@ -641,13 +644,27 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
                 ys.append(p[:, 1] + ly)
         ys = np.concatenate(ys) if ys else np.zeros(0, int)
         xs = np.concatenate(xs) if xs else np.zeros(0, int)
-        unseen = _unseen_share(camera, list(others), ys + y0, xs + x0, uvv, depth[vis], params)
+        uv_g, depth_g = uvv, depth[vis]
+        if base_world_mm is not None:
+            # The robot leaves the base: a backbone that starts where both cameras first see the
+            # robot continues, unreconstructed, on the line back to the base (near it the tube is
+            # straight). Its samples (in the image or not) pin the depth of the foreground there,
+            # where the distance to the reconstructed samples alone would allow any inclination.
+            lead = np.stack([np.asarray(base_world_mm, np.float64), points_world_mm[0]])
+            if np.linalg.norm(lead[1] - lead[0]) > 1e-6:
+                uvl, dl = _dense_projection(camera, lead, params.sample_step_px)
+                okl = np.all(np.isfinite(uvl), axis=1) & (dl > 1e-6)
+                uv_g, depth_g = np.concatenate([uvl[okl], uvv]), np.concatenate([dl[okl], depth_g])
+        unseen = _unseen_share(camera, list(others), ys + y0, xs + x0, uv_g, depth_g, params)
         unseen_px = unseen * unexplained_px
         unexplained_px -= unseen_px
     unexplained = unexplained_px / (unexplained_px + none["visible_px"])
     # (b) is there foreground within the tolerance of each in-image sample?
     uvr = uvv - [x0, y0]
-    off = float(np.mean(~_near_foreground(fg, uvr, params.on_foreground_tolerance_px)))
+    on = _near_foreground(fg, uvr, params.on_foreground_tolerance_px)
+    off = float(np.mean(~on))
+    if _DEBUG is not None:
+        _DEBUG[camera.name]["on"] = on
     # (c) centerline offset across the tube, on every third sample (the RMS needs no more).
     normals = _normals(uv[finite])[vis[finite]]
     sub = slice(None, None, 3)
@@ -728,7 +745,7 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
         if view.binary and gray.max() <= 1:
             gray = gray * np.uint8(255)  # a 0/1 mask
         others = [model.rig[o] for o in model.rig.names if o != name]
-        figures[name] = _judge_view(view, cam, gray, pts, (r_out, r_in), params, others)
+        figures[name] = _judge_view(view, cam, gray, pts, (r_out, r_in), params, others, model.rig.base_point_world_mm)
     reason = _verdict(figures, params)
     if reason is None and not any(f["unexplained_fraction"] is not None for f in figures.values()):
         reason = "the reprojected backbone is in no camera's image"
