@@ -229,6 +229,13 @@ def extract_silhouette(
     group_of = None
     if tube_radii_px is not None and params.group_gap_fraction > 0 and n > 2:
         gap = params.group_gap_fraction * 2.0 * float(max(tube_radii_px))
+        # Only pieces at least a tube's width square are grouped: noise specks of a
+        # low threshold, a few pixels each, would otherwise chain across the frame.
+        piece_px = max(4, int((2.0 * float(min(tube_radii_px))) ** 2))
+        small = stats[:, cv2.CC_STAT_AREA] < piece_px
+        small[0] = False
+        if small.any():
+            binary = (binary.view(bool) & ~small[labels]).view(np.uint8)
         n, labels, stats, group_of = _group_regions(binary, labels, stats, gap)
     areas = stats[1:, cv2.CC_STAT_AREA]
     order = [int(i) + 1 for i in np.argsort(areas, kind="stable")[::-1]]
