@@ -182,7 +182,13 @@ def _lights(rng, target: np.ndarray) -> list:
     return lights
 
 
-def _noise(rng) -> dict:
+def _noise(rng, f_max_px: float) -> dict:
+    """Light and sensor disturbances; camera jitter (shift and rotation together) stays under 1 px sigma.
+
+    The rotation's sigma is drawn as image motion (px) at the longer focal length
+    ``f_max_px`` and converted to degrees: a fixed angle would move a long lens's
+    image by several pixels.
+    """
     return {
         "gain": _r(rng.uniform(0.8, 1.2), 3),
         "lighting_drift": _r(rng.uniform(0.0, 0.05)),
@@ -191,7 +197,7 @@ def _noise(rng) -> dict:
         "offset_dn": _r(rng.uniform(0.0, 4.0), 2),
         "gradient": _r(rng.uniform(0.0, 0.12)),
         "jitter_px": _r(rng.uniform(0.0, 0.6), 3),
-        "jitter_rotation_deg": _r(rng.uniform(0.0, 0.02)),
+        "jitter_rotation_deg": _r(float(np.degrees(rng.uniform(0.0, 0.3) / f_max_px)), 6),
         "photons_full_scale": _r(rng.uniform(1000.0, 20000.0), 0),
         "read_noise_dn": _r(rng.uniform(0.5, 3.0), 2),
         "blur_px": _r(rng.uniform(0.0, 1.0), 3),
@@ -309,6 +315,7 @@ def draw_wide(rng: np.random.Generator, name: str, classes: dict, max_pixels: in
     # image, raised where the thinnest tube would be under 3 px wide.
     probe = scene_from_dict(data, source=name)
     thinnest = min(t["outer_diameter_mm"] for t in tube_tables)
+    f_px_by_cam = {}
     for cam_name, cam in probe.rig.cameras.items():
         uv, z = cam.project(aim_pts)
         ext = np.nanmax(uv, axis=0) - np.nanmin(uv, axis=0)
@@ -322,6 +329,7 @@ def draw_wide(rng: np.random.Generator, name: str, classes: dict, max_pixels: in
         if not _monotonic(cam.dist, 1.2 * r_corner):
             return None
         rig[cam_name]["focal_length_mm"] = _r(f_px * pixel_um * 1e-3, 4)
+        f_px_by_cam[cam_name] = f_px
     scene = scene_from_dict(data, source=name)
     if not ANGLE_DEG[0] <= camera_angle_deg(scene) <= ANGLE_DEG[1]:
         return None
@@ -359,7 +367,7 @@ def draw_wide(rng: np.random.Generator, name: str, classes: dict, max_pixels: in
     if kind == "photo":
         data["backdrop"]["photo"] = PHOTOS[int(rng.integers(len(PHOTOS)))]
     data["lighting"] = {"ambient": _r(rng.uniform(0.15, 0.6), 3), "lights": _lights(rng, target)}
-    data["noise"] = _noise(rng)
+    data["noise"] = _noise(rng, max(f_px_by_cam.values()))
     final = scene_from_dict(data, source=name)
     classes = dict(classes, camera_angle=angle_class(camera_angle_deg(final)), resolution=resolution_class(width, height),
                    contrast=contrast)
