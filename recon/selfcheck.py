@@ -595,7 +595,7 @@ def _contrast_support(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv:
     A tube as bright as a textured backdrop leaves stretches with no pixel out
     of the band, yet it still changes the image a little all along: the
     difference from the background across the tube's middle
-    (:func:`_contrast_profiles`), averaged over ``contrast_window_px`` samples
+    (:func:`_contrast_profiles`), the median over ``contrast_window_px`` samples
     along the curve, against the same taken just outside the band. A sample is
     supported when the average along the tube exceeds ``contrast_min`` and
     ``contrast_ratio`` times that beside it; a backbone over bare backdrop is
@@ -605,10 +605,20 @@ def _contrast_support(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv:
     centre = np.where(np.isfinite(centre), centre, 0.0)
     beside = np.where(np.isfinite(beside), beside, centre)
     win = max(1, int(round(params.contrast_window_px / params.sample_step_px)))
-    kern = np.ones(win) / win
-    along = np.convolve(centre, kern, mode="same")
-    ref = np.convolve(beside, kern, mode="same")
+    along, ref = _running_median(centre, win), _running_median(beside, win)
     return (along > params.contrast_min) & (along > params.contrast_ratio * ref)
+
+
+def _running_median(x: np.ndarray, win: int) -> np.ndarray:
+    """Median over ``win`` consecutive samples centred on each (the ends padded by repetition).
+
+    A median, not a mean: one dark speck on the line would carry a mean alone.
+    """
+    if win <= 1 or len(x) == 0:
+        return x.copy()
+    h = win // 2
+    xp = np.pad(x, (h, win - 1 - h), mode="edge")
+    return np.median(np.lib.stride_tricks.sliding_window_view(xp, win), axis=1)
 
 
 def _beyond_tip(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv_curve: np.ndarray, r_out_tip: float,
@@ -618,8 +628,10 @@ def _beyond_tip(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv_curve:
     Samples every px from ``explain_tolerance_px + 1`` to that plus
     ``tip_probe_px`` beyond the tip along the tip's tangent (taken over the
     last ``2 r_out`` px); their mean difference from the background across
-    the middle against beside (:func:`_contrast_profiles`). ``mean_centre /
-    max(contrast_min, contrast_ratio * mean_beside)``; None when less than
+    the middle against beside (:func:`_contrast_profiles`): ``mean_centre /
+    max(contrast_min, contrast_ratio * mean_beside)`` (means, not medians: a
+    faint tube's difference is spotty, and medians or the weaker half of the
+    probe left the faint short tips of the wide suite silent); None when less than
     half of the probe is in the image.
     """
     n_back = max(2, int(math.ceil(2.0 * r_out_tip / params.sample_step_px)))
