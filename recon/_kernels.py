@@ -12,83 +12,125 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["profile_edges_nb", "coarse_foreground_nb", "bfs_path_nb", "rays_nb"]
+__all__ = ["profile_edges_nb", "profiles_at_seeds_nb", "coarse_foreground_nb", "bfs_path_nb", "rays_nb"]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _add_line(d, frame, stack, coeff, cu, cv, ax, half, o, H, W):
+    """Add the background difference of the line offset ``o`` along the tube to ``d``; False when outside."""
+    L = 2 * half + 1
+    k1 = coeff.shape[0]
+    if ax:
+        r = cv + o
+        if r < 0 or r >= H:
+            return False
+        base = r * W + cu - half
+        stride = 1
+    else:
+        c0 = cu + o
+        if c0 < 0 or c0 >= W:
+            return False
+        base = (cv - half) * W + c0
+        stride = W
+    for j in range(L):
+        p = base + j * stride
+        bg = 0.0
+        for c in range(k1):
+            bg += stack[p, c] * coeff[c]
+        d[j] += frame.flat[p] - bg
+    return True
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _edges_1d(d, threshold, out):
+    """Sub-pixel edges of one profile ``d`` into ``out`` = (e1, e2, weaker rim); False when there are none."""
+    L = d.shape[0]
+    i1 = -1
+    i2 = -1
+    for j in range(L):
+        if abs(d[j]) > threshold:
+            if i1 < 0:
+                i1 = j
+            i2 = j
+    if i1 < 2 or i2 > L - 3 or i2 - i1 < 2:
+        return False
+    s1 = 1.0 if d[i1] > 0 else -1.0
+    s2 = 1.0 if d[i2] > 0 else -1.0
+    r1 = -1e30
+    r2 = -1e30
+    for j in range(3):
+        if d[i1 + j] * s1 > r1:
+            r1 = d[i1 + j] * s1
+        if d[i2 - j] * s2 > r2:
+            r2 = d[i2 - j] * s2
+    if r1 <= threshold or r2 <= threshold:
+        return False
+    w1 = 0.0
+    w2 = 0.0
+    for j in range(-1, 2):
+        a = d[i1 + j] * s1 / r1
+        w1 += 0.0 if a < 0.0 else (1.0 if a > 1.0 else a)
+        b = d[i2 - j] * s2 / r2
+        w2 += 0.0 if b < 0.0 else (1.0 if b > 1.0 else b)
+    out[0] = i1 + 1.5 - w1
+    out[1] = i2 - 1.5 + w2
+    out[2] = min(r1, r2)
+    return True
 
 
 @njit(cache=True, nogil=True)
-def profile_edges_nb(frame, stack, coeff, cu, cv, axis, half, threshold, nav):
+def profile_edges_nb(frame, stack, coeff, cu, cv, axis, half, threshold, nav, threshold1, strong):
     """Cut the profiles and find their sub-pixel edges (see :func:`recon.subpixel.profile_edges`).
 
     Profile ``i`` is the mean of ``2 nav[i] + 1`` parallel lines, offset by
     ``-nav[i]..nav[i]`` px along the tube (rows for a row profile); lines outside
-    the image are left out. Returns ``e1, e2, ok`` (sample units from the
-    window's first sample).
+    the image are left out. The middle line is tried alone first (threshold
+    ``threshold1``): where both its rims exceed ``strong`` the other lines
+    are not cut, nor where none of its samples exceeds ``threshold`` (no
+    tube there); ``strong`` = inf: always average. Returns ``e1, e2, ok,
+    lines`` (sample units from the window's first sample; lines averaged).
     """
     H, W = frame.shape
     n = cu.shape[0]
     L = 2 * half + 1
-    k1 = coeff.shape[0]
     e1 = np.zeros(n)
     e2 = np.zeros(n)
     ok = np.zeros(n, np.bool_)
+    used = np.zeros(n, np.int64)
     d = np.empty(L)
+    out = np.empty(3)
     for i in range(n):
         for j in range(L):
             d[j] = 0.0
-        m = 0
-        for o in range(-nav[i], nav[i] + 1):
-            if axis[i]:
-                r = cv[i] + o
-                if r < 0 or r >= H:
-                    continue
-                base = r * W + cu[i] - half
-                stride = 1
-            else:
-                c0 = cu[i] + o
-                if c0 < 0 or c0 >= W:
-                    continue
-                base = (cv[i] - half) * W + c0
-                stride = W
-            m += 1
+        m = 1 if _add_line(d, frame, stack, coeff, cu[i], cv[i], axis[i], half, 0, H, W) else 0
+        if nav[i] > 0 and m == 1 and np.isfinite(strong):
+            if _edges_1d(d, threshold1, out) and out[2] >= strong:
+                e1[i] = out[0]
+                e2[i] = out[1]
+                ok[i] = True
+                used[i] = 1
+                continue
+            beyond = False
             for j in range(L):
-                p = base + j * stride
-                bg = 0.0
-                for c in range(k1):
-                    bg += stack[p, c] * coeff[c]
-                d[j] += frame.flat[p] - bg
+                if abs(d[j]) > threshold:
+                    beyond = True
+                    break
+            if not beyond:
+                used[i] = 1
+                continue  # not one sample of the middle line beyond the mean's threshold: no tube here
+        for o in range(-nav[i], nav[i] + 1):
+            if o != 0 and _add_line(d, frame, stack, coeff, cu[i], cv[i], axis[i], half, o, H, W):
+                m += 1
+        if m == 0:
+            continue
         for j in range(L):
             d[j] /= m
-        i1 = -1
-        i2 = -1
-        for j in range(L):
-            if abs(d[j]) > threshold:
-                if i1 < 0:
-                    i1 = j
-                i2 = j
-        if i1 < 2 or i2 > L - 3 or i2 - i1 < 2:
-            continue
-        s1 = 1.0 if d[i1] > 0 else -1.0
-        s2 = 1.0 if d[i2] > 0 else -1.0
-        r1 = -1e30
-        r2 = -1e30
-        for j in range(3):
-            if d[i1 + j] * s1 > r1:
-                r1 = d[i1 + j] * s1
-            if d[i2 - j] * s2 > r2:
-                r2 = d[i2 - j] * s2
-        if r1 <= threshold or r2 <= threshold:
-            continue
-        w1 = 0.0
-        w2 = 0.0
-        for j in range(-1, 2):
-            a = d[i1 + j] * s1 / r1
-            w1 += 0.0 if a < 0.0 else (1.0 if a > 1.0 else a)
-            b = d[i2 - j] * s2 / r2
-            w2 += 0.0 if b < 0.0 else (1.0 if b > 1.0 else b)
-        e1[i] = i1 + 1.5 - w1
-        e2[i] = i2 - 1.5 + w2
-        ok[i] = True
-    return e1, e2, ok
+        used[i] = m
+        if _edges_1d(d, threshold, out):
+            e1[i] = out[0]
+            e2[i] = out[1]
+            ok[i] = True
+    return e1, e2, ok, used
 
 
 @njit(cache=True, nogil=True)
@@ -550,3 +592,51 @@ def project_nb(P, K, dist, T):
         uv[i, 0] = K[0, 0] * xd + K[0, 1] * yd + K[0, 2]
         uv[i, 1] = K[1, 1] * yd + K[1, 2]
     return uv, z
+
+
+@njit(cache=True, nogil=True)
+def profiles_at_seeds_nb(frame, stack, coeff, seeds, tangents, half, threshold, nav_max, threshold1, strong):
+    """:func:`recon.subpixel.edges_from_profiles` in one call: windows, lines averaged, edges, centres.
+
+    Returns ``centers (n, 2), chord (n,), axis (n,) int8, ok (n,)``.
+    """
+    H, W = frame.shape
+    n = seeds.shape[0]
+    axis = np.zeros(n, np.int8)
+    cu = np.empty(n, np.int64)
+    cv = np.empty(n, np.int64)
+    nav = np.empty(n, np.int64)
+    inside = np.empty(n, np.bool_)
+    for i in range(n):
+        tx = abs(tangents[i, 0])
+        ty = abs(tangents[i, 1])
+        ax = ty > tx
+        axis[i] = 1 if ax else 0
+        major = max(tx, ty)
+        minor = max(min(tx, ty), 1e-6)
+        nav[i] = min(nav_max, int(np.floor(major / minor + 1e-9)))
+        u0 = int(np.rint(seeds[i, 0]))
+        v0 = int(np.rint(seeds[i, 1]))
+        if ax:
+            u = min(max(u0, half), W - 1 - half)
+            v = min(max(v0, 0), H - 1)
+        else:
+            u = min(max(u0, 0), W - 1)
+            v = min(max(v0, half), H - 1 - half)
+        cu[i] = u
+        cv[i] = v
+        inside[i] = u == u0 and v == v0
+    e1, e2, ok, _ = profile_edges_nb(frame, stack, coeff, cu, cv, axis, half, threshold, nav, threshold1, strong)
+    centers = np.empty((n, 2))
+    chord = np.empty(n)
+    for i in range(n):
+        ok[i] = ok[i] and inside[i]
+        mid = 0.5 * (e1[i] + e2[i]) - half
+        if axis[i]:
+            centers[i, 0] = cu[i] + mid
+            centers[i, 1] = cv[i]
+        else:
+            centers[i, 0] = cu[i]
+            centers[i, 1] = cv[i] + mid
+        chord[i] = e2[i] - e1[i]
+    return centers, chord, axis, ok

@@ -89,6 +89,12 @@ class FastParams:
         Each profile averages ``2 profile_half_lines + 1`` parallel lines along
         the tube (fewer where the tube runs slanted to them), so that a tube
         little brighter or darker than the backdrop still has edges.
+    single_line_rim_factor : float
+        The middle line is tried alone first: where both its rims exceed this
+        many times the single-line threshold (``edge_threshold_sigma`` sigmas,
+        at least ``edge_min_dn``) its edges are used and the other lines are
+        not cut (the averaging is ~5x the work per profile); inf: always
+        average.
     min_width_fraction, max_width_fraction : float
         Profiles narrower than this fraction of the inner tube's width, or
         wider than this fraction of the outer tube's, are rejected.
@@ -140,6 +146,7 @@ class FastParams:
     edge_threshold_sigma: float = 5.0
     edge_min_dn: float = 8.0
     profile_half_lines: int = 2
+    single_line_rim_factor: float = 3.0
     min_width_fraction: float = 0.4
     max_width_fraction: float = 1.3
     follow_gap_diameters: float = 3.0
@@ -379,8 +386,12 @@ def _view_samples(model: FastModel, name: str, vc: ViewCenterline, step: float) 
 def _phi_at(model: FastModel, name: str, uv: np.ndarray) -> np.ndarray:
     """Epipolar-plane angle (rad) of the rays through undistorted-by-calibration pixels ``uv`` (m, 2) of a view."""
     cam = model.rig[name]
-    xy = _pixels_to_normalized(cam, np.asarray(uv, float).reshape(-1, 2))
+    uv = np.ascontiguousarray(np.asarray(uv, float).reshape(-1, 2))
     R = model.R_world_cam[name]
+    if subpixel.USE_NUMBA:
+        ef = model.epipolar
+        return rays_nb(uv, cam.K, cam.dist, R, ef.baseline, ef.e1, ef.e2, model.epipoles[name], 5)[1]
+    xy = _pixels_to_normalized(cam, uv)
     return model.epipolar.phi(xy @ R[:, :2].T + R[:, 2])
 
 

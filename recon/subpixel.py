@@ -55,6 +55,7 @@ try:  # compiled per-pixel loops (optional; the NumPy code below gives the same 
         frame_coefficients_nb,
         frame_shift_nb,
         profile_edges_nb,
+        profiles_at_seeds_nb,
         spline_eval_nb,
         spline_robust_nb,
         tip_along_axis_nb,
@@ -694,7 +695,7 @@ def _resample(path: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([np.interp(t, s, path[:, 0]), np.interp(t, s, path[:, 1])], axis=1), t
 
 
-def profile_edges(d: np.ndarray, threshold: float):
+def profile_edges(d: np.ndarray, threshold: float, rims: bool = False):
     """Sub-pixel edges of the tube on profiles ``d`` (n, L): signed differences from the background.
 
     Returns ``(e1, e2, ok)``: edge positions in sample units (0 = first
@@ -702,7 +703,8 @@ def profile_edges(d: np.ndarray, threshold: float):
     the pixels outside and those fully inside minus the coverage of the
     partial pixels, with the coverage of a pixel = its difference over the
     rim contrast (largest same-signed difference among the first three
-    pixels inside).
+    pixels inside). With ``rims`` the weaker rim contrast of each profile is
+    returned too.
     """
     n, L = d.shape
     a = np.abs(d) > threshold
@@ -728,6 +730,8 @@ def profile_edges(d: np.ndarray, threshold: float):
     w2 = np.clip(d[rows, i2[:, None] - np.arange(-1, 2)] / rim2[:, None], 0.0, 1.0).sum(axis=1)
     e1 = i1 + 1.5 - w1
     e2 = i2 - 1.5 + w2
+    if rims:
+        return e1, e2, ok, np.where(ok, np.minimum(np.abs(rim1), np.abs(rim2)), 0.0)
     return e1, e2, ok
 
 
@@ -769,32 +773,46 @@ def _gather_profiles(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, see
     return acc / cnt[:, None], axis.astype(np.int8), cuc, cvc, full
 
 
-def edges_from_profiles(model: ViewModel, frame, coeff, seeds, tangents, s, half, threshold, nav: int = 0) -> Profiles:
+def edges_from_profiles(model: ViewModel, frame, coeff, seeds, tangents, s, half, threshold, nav: int = 0,
+                        threshold1: float | None = None, strong: float = np.inf) -> Profiles:
     """Cut profiles at ``seeds`` across ``tangents`` and locate the edges on them.
 
     With ``nav`` > 0 each profile averages ``2 nav + 1`` parallel lines along
     the tube (noise down by their square root; the edges of a slanted tube are
     blurred symmetrically, so the summed coverage, hence the edge, is that
     of the middle line); ``nav`` is lowered where the tube runs slanted to
-    the lines (their edges spread by at most ~2 px).
+    the lines (their edges spread by at most ~2 px). The middle line is tried
+    alone first (threshold ``threshold1``, default ``threshold``): where both
+    its rims exceed ``strong`` (gray levels) its edges are taken as they are
+    and the other lines are not cut (most of a tube well off its backdrop;
+    the averaging costs ~5x the background model's work per profile), nor
+    where none of its samples exceeds ``threshold`` (no tube there: past the
+    tip, while bridging a gap).
     """
+    if USE_NUMBA:
+        centers, chord, axis, ok = profiles_at_seeds_nb(
+            frame, model.stack, coeff, np.ascontiguousarray(seeds, np.float64), np.ascontiguousarray(tangents, np.float64),
+            int(half), float(threshold), int(nav), float(threshold if threshold1 is None else threshold1), float(strong))
+        return Profiles(centers=centers, chord=chord, axis=axis, s=s, ok=ok)
     tangents = np.asarray(tangents, np.float64)
     major = np.maximum(np.abs(tangents[:, 0]), np.abs(tangents[:, 1]))
     minor = np.minimum(np.abs(tangents[:, 0]), np.abs(tangents[:, 1]))
     nav = np.minimum(int(nav), np.floor(major / np.maximum(minor, 1e-6) + 1e-9)).astype(np.int64)
-    if USE_NUMBA:
-        H, W = model.shape
-        axis = (np.abs(tangents[:, 1]) > np.abs(tangents[:, 0])).astype(np.int8)
-        cu0 = np.rint(seeds[:, 0]).astype(np.int64)
-        cv0 = np.rint(seeds[:, 1]).astype(np.int64)
-        cu = np.where(axis == 1, np.clip(cu0, half, W - 1 - half), np.clip(cu0, 0, W - 1))
-        cv = np.where(axis == 1, np.clip(cv0, 0, H - 1), np.clip(cv0, half, H - 1 - half))
-        e1, e2, ok = profile_edges_nb(frame, model.stack, coeff, cu, cv, axis, half, float(threshold), nav)
-        ok &= (cu == cu0) & (cv == cv0)
+    thr1 = float(threshold if threshold1 is None else threshold1)
+    strong = float(strong)
+    if np.isfinite(strong) and nav.max(initial=0) > 0:
+        d, axis, cu, cv, full = _gather_profiles(model, frame, coeff, seeds, tangents, half, 0)
+        e1, e2, ok, rim = profile_edges(d, thr1, rims=True)
+        # Not averaged: strong single-line edges, and profiles without one sample beyond the mean's threshold.
+        rest = np.flatnonzero(~((nav > 0) & ((ok & (rim >= strong)) | ~(np.abs(d) > threshold).any(axis=1))))
     else:
         d, axis, cu, cv, full = _gather_profiles(model, frame, coeff, seeds, tangents, half, nav)
         e1, e2, ok = profile_edges(d, threshold)
-        ok &= full
+        rest = np.zeros(0, np.int64)
+    if rest.size:
+        d = _gather_profiles(model, frame, coeff, seeds[rest], tangents[rest], half, nav[rest])[0]
+        e1[rest], e2[rest], ok[rest] = profile_edges(d, threshold)
+    ok &= full
     mid = (e1 + e2) / 2.0 - half
     centers = np.stack([np.where(axis == 1, cu + mid, cu), np.where(axis == 1, cv, cv + mid)], axis=1).astype(np.float64)
     return Profiles(centers=centers, chord=(e2 - e1), axis=axis, s=s, ok=ok)
@@ -1112,7 +1130,7 @@ def _end_of(fitter, coef, s, good, d, width):
 
 
 def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step, tolerance, batch: int = 4,
-                 max_gap_px: float = 0.0, confirm: int = 4, nav: int = 0):
+                 max_gap_px: float = 0.0, confirm: int = 4, nav: int = 0, threshold1=None, strong: float = np.inf):
     """Profiles beyond ``p`` (px) along the tube, at full resolution, for as long as they find it.
 
     Starting from a centre ``p`` with tangent ``t`` and curve parameter ``s``,
@@ -1144,7 +1162,6 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
         border: the robot may continue out of view.
     """
     H, W = model.shape
-    k = step * np.arange(1, batch + 1, dtype=np.float64)
     p, t = np.asarray(p, np.float64), _unit(np.asarray(t, np.float64))
     recent = p[None]
     last_hit = p.copy()
@@ -1158,18 +1175,24 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
             # Direction of the last centres (principal axis), oriented along the previous tangent.
             ax = np.linalg.svd(recent - recent.mean(axis=0), full_matrices=False)[2][0]
             t = _unit(ax if ax @ t > 0 else -ax)
+        # While bridging a gap the prediction stays put: the rest of the gap (and the profiles that would
+        # confirm a tube beyond it) in one batch.
+        nb = batch if misses < 2 or pending else int(min(max(batch, max_misses - misses + confirm), 128))
+        k = step * np.arange(1, nb + 1, dtype=np.float64)
         seeds = p + k[:, None] * t
-        pr = edges_from_profiles(model, frame, coeff, seeds, np.broadcast_to(t, seeds.shape), s + k, half, threshold, nav)
+        pr = edges_from_profiles(model, frame, coeff, seeds, np.broadcast_to(t, seeds.shape), s + k, half, threshold, nav, threshold1, strong)
         width = pr.chord * max(abs(t[0]), abs(t[1]))  # the slant, as in extract_view (profiles run across the larger component)
         off = (pr.centers - seeds) @ np.array([-t[1], t[0]])
         ahead = (seeds - last_hit) @ t
         hit = pr.ok & (width > wmin) & (width < wmax) & (np.abs(off) < tolerance + 0.25 * np.maximum(ahead, 0.0))
         s_c = s + k + (pr.centers - seeds) @ t
-        stop = False
-        for i in range(batch):
-            u, v = seeds[i]
-            at_border = u < half or v < half or u > W - 1 - half or v > H - 1 - half
+        stop = confirmed = False
+        border = ((seeds[:, 0] < half) | (seeds[:, 1] < half) | (seeds[:, 0] > W - 1 - half) | (seeds[:, 1] > H - 1 - half)).tolist()
+        hit, width_l = hit.tolist(), width.tolist()
+        for i in range(nb):
+            at_border = border[i]
             if at_border and (misses < 2 or pending):
+                u, v = seeds[i]
                 out = [b for b, o in zip(_BORDER_NAMES, (u < half, v < half, u > W - 1 - half, v > H - 1 - half)) if o]
                 raise FrameError(f"robot partly out of view (the tube runs to within {half} px of the {' and '.join(out)} image border)", model.name)
             if at_border:
@@ -1177,23 +1200,26 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
                 break
             if hit[i] and misses >= 2 and widths:
                 wref = float(np.median(widths[-6:]))
-                if not 0.5 * wref < width[i] < 1.35 * wref:
+                if not 0.5 * wref < width_l[i] < 1.35 * wref:
                     hit[i] = False
             if hit[i]:
-                item = (pr.centers[i], pr.chord[i], pr.axis[i], s_c[i], width[i])
+                item = (pr.centers[i], pr.chord[i], pr.axis[i], s_c[i], width_l[i])
                 if misses >= 2 or pending:
                     pending.append(item)
                     if len(pending) >= confirm:
                         found.extend(pending)
                         pending = []
                         misses = 0
+                        confirmed = True
                 else:
                     found.append(item)
                     misses = 0
                 if not pending:
-                    widths.append(float(width[i]))
+                    widths.append(width_l[i])
                     last_hit = pr.centers[i].copy()
                     recent = np.concatenate([recent, pr.centers[i][None]])[-6:]
+                if confirmed:
+                    break  # re-predict the axis from the centres beyond the gap
             else:
                 if pending:
                     misses += len(pending)
@@ -1256,7 +1282,8 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
     seeds, s = _resample(_smooth_path(coarse.path_px, 3), params.profile_step_px)
     tang = _tangents(seeds)
     half = int(np.ceil(rmax * 1.45 + 1.5 * f + 2))
-    prof = edges_from_profiles(model, frame, coeff, seeds, tang, s, half, thr, nav)
+    strong = float(getattr(params, "single_line_rim_factor", np.inf)) * thr_px
+    prof = edges_from_profiles(model, frame, coeff, seeds, tang, s, half, thr, nav, thr_px, strong)
     lap("profiles")
     s, c, ok = _reparameterize(prof, seeds, tang)
     ok &= (prof.chord > wmin) & (prof.chord < 1.45 * wmax)
@@ -1274,7 +1301,8 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
     sb, p_end, t_end, r_end = _end_of(fitter, coef, s, good, d, width)
     more = _follow_tube(model, frame, coeff, p_end, t_end, sb, int(np.ceil(rmax * 1.45 + 4)), thr, wmin, wmax,
                         params.profile_step_px, model.inner_radius_px,
-                        max_gap_px=2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0), nav=nav)
+                        max_gap_px=2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0), nav=nav,
+                        threshold1=thr_px, strong=strong)
     if more is not None and more.s[-1] > sb + 2.0 * r_end + 2.0:
         order = np.argsort(np.concatenate([s, more.s]), kind="stable")
         s = np.concatenate([s, more.s])[order]
