@@ -131,13 +131,14 @@ class SelfCheckParams:
         ``contrast_ratio`` times the same just beside the band (a tube as
         bright as a textured backdrop still changes it a little all along;
         bare backdrop does not differ from its side). Measured on the wide
-        suite against the truth: 97 % of such on-tube samples supported, 9 %
-        of off-tube ones.
-    tip_probe_start_px, tip_probe_px, max_beyond_tip_contrast
+        suite against the truth (window means, ratio 2): 97 % of such on-tube
+        samples supported, 9 % of off-tube ones; now running medians and ratio
+        3 (ratio 2 let a backbone with a 98 px detour pass on wide-2-7).
+    tip_probe_start_px, tip_probe_px, tip_probe_ratio, max_beyond_tip_contrast
         The tip probe: the same difference on the backbone's continuation
         beyond the reprojected tip (along the tip's tangent, from
-        ``tip_probe_start_px`` for ``tip_probe_px``), over
-        ``max(contrast_min, contrast_ratio * beside)``; above
+        ``tip_probe_start_px`` for ``tip_probe_px``), its mean over
+        ``max(contrast_min, tip_probe_ratio * beside)``; above
         ``max_beyond_tip_contrast`` in any view the tube goes on: the backbone
         is short (a faint inner tube that the foreground does not show). The
         start (8 px) is the unexplained length's limit: a tip 8 footprints
@@ -168,7 +169,8 @@ class SelfCheckParams:
     speck_reach: float = 1.0
     contrast_window_px: float = 15.0
     contrast_min: float = 0.4
-    contrast_ratio: float = 2.0
+    contrast_ratio: float = 3.0
+    tip_probe_ratio: float = 2.0
     tip_probe_start_px: float = 8.0
     tip_probe_px: float = 12.0
 
@@ -629,7 +631,7 @@ def _beyond_tip(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv_curve:
     ``tip_probe_px`` beyond the tip along the tip's tangent (taken over the
     last ``2 r_out`` px); their mean difference from the background across
     the middle against beside (:func:`_contrast_profiles`): ``mean_centre /
-    max(contrast_min, contrast_ratio * mean_beside)`` (means, not medians: a
+    max(contrast_min, tip_probe_ratio * mean_beside)`` (means, not medians: a
     faint tube's difference is spotty, and medians or the weaker half of the
     probe left the faint short tips of the wide suite silent); None when less than
     half of the probe is in the image.
@@ -656,7 +658,7 @@ def _beyond_tip(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv_curve:
     ok = np.isfinite(centre) & np.isfinite(beside)
     if ok.sum() < 0.5 * len(dist):
         return None
-    return float(np.mean(centre[ok]) / max(params.contrast_min, params.contrast_ratio * float(np.mean(beside[ok]))))
+    return float(np.mean(centre[ok]) / max(params.contrast_min, params.tip_probe_ratio * float(np.mean(beside[ok]))))
 
 
 def _unseen_share(camera, others: list, ys: np.ndarray, xs: np.ndarray, uv_bb: np.ndarray, depth_bb: np.ndarray,
