@@ -37,7 +37,7 @@ from .carving import rig_center
 from .epipolar import EpipolarFrame, align_dp, conditioning, monotonic, triangulate_rays
 from .errors import FrameError
 from .methods import Method, register_method
-from .paper import camera_order, check_tube_widths
+from .paper import camera_order
 from .rigcal import RigCalibration
 from . import subpixel
 from .subpixel import ViewCenterline, ViewModel, extract_view, fit_curve, prepare_view
@@ -61,7 +61,8 @@ class FastParams:
         Tube radii (mm): widths expected in the images, and the end cap.
     min_tube_width_px : float
         Every frame is refused (:class:`~recon.errors.FrameError`) when a
-        tube is narrower than this in a camera's image at the robot base
+        tube is narrower than this in a camera's image at the robot base, or
+        where the robot enters the image when the base is out of view
         (px): below it the thin tube is lost and the backbone silently stops
         short of the tip (see docs/envelope.md, "Tube too thin to resolve",
         for the measurement behind the default).
@@ -383,6 +384,14 @@ def _view_samples(model: FastModel, name: str, vc: ViewCenterline, step: float) 
     return _ViewSamples(s=s, uv=uv, dirs=d, phi=model.epipolar.phi(d), cond=conditioning(xy, model.epipoles[name]))
 
 
+def _check_tube_widths(name: str, vm, min_width_px: float) -> None:
+    """:func:`recon.paper.check_tube_widths`, with the widths where the view sees the robot (``vm.width_at``)."""
+    for tube, r in (("outer", vm.outer_radius_px), ("inner", vm.inner_radius_px)):
+        if 2.0 * float(r) < min_width_px:
+            raise FrameError(f"{tube} tube is {2.0 * float(r):.1f} px wide {vm.width_at}, less than "
+                             f"min_tube_width_px = {min_width_px:g}: too thin to resolve", name)
+
+
 def _phi_at(model: FastModel, name: str, uv: np.ndarray) -> np.ndarray:
     """Epipolar-plane angle (rad) of the rays through undistorted-by-calibration pixels ``uv`` (m, 2) of a view."""
     cam = model.rig[name]
@@ -541,7 +550,7 @@ class FastReconstructor:
             if name not in frames or frames[name] is None:
                 raise FrameError("no frame", name)
             vm = model.views[name]
-            check_tube_widths(name, (vm.outer_radius_px, vm.inner_radius_px), params.min_tube_width_px)
+            _check_tube_widths(name, vm, params.min_tube_width_px)
         for name in model.pair:
             stages = {}
             roi = self._roi.get(name)

@@ -144,7 +144,9 @@ class ViewModel:
         from the base to the entry point (a precurved tube can enter a little
         off the axis), 0 when the base is in view.
     outer_radius_px, inner_radius_px : float
-        Tube radii in the image at the base (px).
+        Tube radii in the image where the robot is seen (px): at the base, or
+        where the insertion axis enters the image when the base is out of
+        view (``width_at`` says which).
     peak : float
         Brightest gray level of the mean background (all-black check).
     """
@@ -176,6 +178,7 @@ class ViewModel:
     coarse_stack: np.ndarray = None
     start_px: np.ndarray = None
     start_search_px: float = 0.0
+    width_at: str = "at the robot base"
 
     @property
     def coarse_shape(self) -> tuple:
@@ -248,9 +251,10 @@ def _coarse_coefficients(model: ViewModel, r: np.ndarray, exclude: np.ndarray | 
 def _entry_point(camera, base_world_mm, axis_world, H: int, W: int, margin: float = 2.0, reach_mm: float = 400.0):
     """Where the robot is looked for: the projected base, or where the projected insertion axis enters the image.
 
-    Returns ``(start_px, extra_search_px)``; ``start_px`` is None when neither
-    the base nor any point of the axis within ``reach_mm`` projects into the
-    image.
+    Returns ``(start_px, extra_search_px, point_world_mm)``; ``start_px`` is
+    None when neither the base nor any point of the axis within ``reach_mm``
+    projects into the image; ``point_world_mm`` is the axis point at
+    ``start_px`` (the base when it is in view or nothing is).
     """
     base = np.asarray(base_world_mm, float)
     axis = np.asarray(axis_world, float)
@@ -259,11 +263,11 @@ def _entry_point(camera, base_world_mm, axis_world, H: int, W: int, margin: floa
     uv, z = camera.project(base[None] + t[:, None] * axis[None])
     inside = (z > 0) & (uv[:, 0] >= margin) & (uv[:, 0] <= W - 1 - margin) & (uv[:, 1] >= margin) & (uv[:, 1] <= H - 1 - margin)
     if inside[0]:
-        return uv[0].copy(), 0.0
+        return uv[0].copy(), 0.0, base
     if not inside.any():
-        return None, 0.0
+        return None, 0.0, base
     k = int(np.argmax(inside))
-    return uv[k].copy(), 0.2 * float(np.hypot(*(uv[k] - uv[0]))) if z[0] > 0 else 0.0
+    return uv[k].copy(), (0.2 * float(np.hypot(*(uv[k] - uv[0]))) if z[0] > 0 else 0.0), base + t[k] * axis
 
 
 def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm, inner_radius_mm, background_frames,
@@ -299,8 +303,10 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
     tip_uv, _ = camera.project(np.asarray(base_world_mm, float)[None] + 5.0 * np.asarray(axis_world, float)[None])
     axis_px = tip_uv[0] - base_uv[0]
     axis_px /= max(np.linalg.norm(axis_px), 1e-9)
-    mm_px = camera.mm_per_pixel_at(base_world_mm)
-    start_px, start_search = _entry_point(camera, base_world_mm, axis_world, H, W)
+    start_px, start_search, seen_at = _entry_point(camera, base_world_mm, axis_world, H, W)
+    # Tube widths where the robot is seen: at the base, or where it enters the view (an out-of-view base can
+    # lie farther from the camera than any part of the robot in the image, and the tubes look thinner there).
+    mm_px = camera.mm_per_pixel_at(seen_at)
     model = ViewModel(
         name=name, shape=(H, W), stack=stack, factor=factor, coarse_mean=coarse_mean, coarse_basis=coarse_basis,
         coarse_gram=gram, coarse_basis_t=np.ascontiguousarray(coarse_basis.T), coarse_threshold=np.zeros((hc, wc), np.float32),
@@ -311,6 +317,7 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
         base_px=base_uv[0], axis_px=axis_px, outer_radius_px=outer_radius_mm / mm_px,
         inner_radius_px=inner_radius_mm / mm_px, peak=float(eigen.mean.max()),
         start_px=start_px, start_search_px=start_search,
+        width_at="at the robot base" if np.array_equal(seen_at, np.asarray(base_world_mm, float)) else "where the robot enters the image",
     )
     # Pixel noise from differences of consecutive background frames (robust; offsets removed).
     frames = np.asarray(background_frames)
