@@ -549,17 +549,6 @@ def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_
     return out
 
 
-def _sample_image(img: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Nearest-pixel values of a (H, W) array at points (..., 2); NaN outside."""
-    u = np.rint(pts[..., 0]).astype(np.int64)
-    v = np.rint(pts[..., 1]).astype(np.int64)
-    h, w = img.shape
-    ins = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    out = np.full(u.shape, np.nan, np.float32)
-    out[ins] = img[v[ins], u[ins]]
-    return out
-
-
 def _contrast_profiles(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv: np.ndarray, normals: np.ndarray,
                        r_out_px: np.ndarray, r_in_px: np.ndarray, params: SelfCheckParams) -> tuple:
     """Per point: the image's difference from the background across the tube's middle, and just beside the band.
@@ -572,11 +561,17 @@ def _contrast_profiles(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv
     gain, offset = gain_offset if gain_offset else (1.0, 0.0)
     ri = np.maximum(r_in_px, 1.0)
 
-    def excess(pts):
-        g = _sample_image(gray, pts)
-        m = _sample_image(view.mean, pts)
-        half = np.maximum(0.5 * (_sample_image(view.hi, pts) - _sample_image(view.lo, pts)), 1.0)
-        return np.abs((g - offset) / gain - m) / half
+    h, w = gray.shape
+
+    def excess(pts):  # nearest pixel, NaN outside the image; indices computed once for the four arrays
+        u = np.rint(pts[..., 0]).astype(np.int64)
+        v = np.rint(pts[..., 1]).astype(np.int64)
+        ins = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        ui, vi = u[ins], v[ins]
+        half = np.maximum(0.5 * (view.hi[vi, ui] - view.lo[vi, ui]), 1.0)
+        out = np.full(u.shape, np.nan, np.float32)
+        out[ins] = np.abs((gray[vi, ui] - offset) / gain - view.mean[vi, ui]) / half
+        return out
 
     def most(x):  # max across, -inf where all outside the image
         return np.max(np.where(np.isnan(x), -np.inf, x), axis=1)
