@@ -26,7 +26,22 @@ __all__ = [
     "fit_eigenbackground",
     "background_estimate",
     "difference_image",
+    "to_gray",
 ]
+
+
+def to_gray(images: np.ndarray) -> np.ndarray:
+    """Gray images from RGB ones: (..., H, W, 3) -> (..., H, W) with OpenCV's luma weights; gray passes through.
+
+    Colour cameras deliver RGB frames; the background model and the difference
+    work on one channel, as the mono cameras of the paper's rig give.
+    """
+    a = np.asarray(images)
+    if a.ndim < 3 or a.shape[-1] != 3:
+        return a
+    flat = a.reshape((-1,) + a.shape[-3:])
+    out = np.stack([cv2.cvtColor(np.ascontiguousarray(f), cv2.COLOR_RGB2GRAY) for f in flat])
+    return out.reshape(a.shape[:-1])
 
 
 @dataclass(frozen=True)

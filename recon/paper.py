@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from .backbone import BackboneParams, order_backbone
-from .background import EigenBackgroundParams, difference_image, fit_eigenbackground
+from .background import EigenBackgroundParams, difference_image, fit_eigenbackground, to_gray
 from .carving import CarvingParams, bounding_box, carve
 from .centerline import CenterlineParams, centerline_params_for, extract_centerline
 from .errors import FrameError
@@ -255,7 +255,7 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
         if name not in background_frames:
             raise ValueError(f"{name}: no background frames")
         try:
-            model = fit_eigenbackground(background_frames[name], params.background)
+            model = fit_eigenbackground(to_gray(background_frames[name]), params.background)
         except ValueError as exc:
             raise ValueError(f"{name}: {exc}") from None
         if model.shape != (cam.height, cam.width):
@@ -452,7 +452,7 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
         if name not in frames or frames[name] is None:
             raise FrameError("no frame", name)
         check_tube_widths(name, model.tube_radii_px.get(name), params.min_tube_width_px)
-        diff, peak = difference_image(model.backgrounds[name], frames[name], name, ignore=model.behind_base.get(name),
+        diff, peak = difference_image(model.backgrounds[name], to_gray(frames[name]), name, ignore=model.behind_base.get(name),
                                      blur_sigma_px=0.0 if model.full_scale.get(name, 1.0) > 1.0 else params.difference_blur_px)
         lap("background")
         sp = model.silhouette.get(name, params.silhouette)
