@@ -63,9 +63,11 @@ class FastParams:
         Every frame is refused (:class:`~recon.errors.FrameError`) when a
         tube is narrower than this in a camera's image at the robot base, or
         where the robot enters the image when the base is out of view
-        (px): below it the thin tube is lost and the backbone silently stops
-        short of the tip (see docs/envelope.md, "Tube too thin to resolve",
-        for the measurement behind the default).
+        (px). Was 4 (docs/envelope.md, "Tube too thin to resolve": a thinner
+        tube was lost and the backbone stopped short of the tip); with the
+        tip check (``max_tip_mismatch_px``) such frames are refused, and 3.1-4 px
+        tubes of the wide suite reconstruct within 1.6 px mean
+        (docs/fast-method.md, "Tubes too thin to resolve").
     coarse_factor : int
         Downsampling of the coarse stage.
     coarse_threshold_sigma, coarse_threshold_min_dn : float
@@ -136,7 +138,7 @@ class FastParams:
     background: EigenBackgroundParams = field(default_factory=EigenBackgroundParams)
     outer_tube_radius_mm: float = 0.8
     inner_tube_radius_mm: float = 0.5
-    min_tube_width_px: float = 4.0
+    min_tube_width_px: float = 3.0
     coarse_factor: int = 4
     coarse_threshold_sigma: float = 6.0
     coarse_threshold_min_dn: float = 6.0
