@@ -237,6 +237,8 @@ def extract_silhouette(
         if small.any():
             binary = (binary.view(bool) & ~small[labels]).view(np.uint8)
         n, labels, stats, group_of = _group_regions(binary, labels, stats, gap)
+        if n <= 1:
+            raise FrameError(f"no silhouette (only specks above {params.threshold:g}, none of {piece_px} px)", camera_name)
     areas = stats[1:, cv2.CC_STAT_AREA]
     order = [int(i) + 1 for i in np.argsort(areas, kind="stable")[::-1]]
     a0 = int(stats[order[0], cv2.CC_STAT_AREA])
