@@ -1,0 +1,63 @@
+"""A small fixed wide set, end to end as ``ctr-bench bench --suite wide`` runs it (issue 13).
+
+Four scenes of the wide distribution (seed 21, a seed nothing was tuned on;
+sensors up to 0.52 MP so that CI renders them in about a minute), rendered,
+reconstructed through ``reconstruct_session`` with the self-check, and
+scored in pixel footprints. The bounds are the issue's goals for each method.
+"""
+from __future__ import annotations
+
+import csv
+
+import pytest
+
+from rig import widebench
+
+SEED = 21
+N_SCENES = 4
+MAX_PIXELS = 520_000
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory):
+    out = tmp_path_factory.mktemp("wide")
+    return widebench.run_suite("wide", N_SCENES, SEED, ["paper", "fast"], out / "run", out / "cache", quiet=True,
+                               max_pixels=MAX_PIXELS), out / "run"
+
+
+def test_rows_written_for_every_frame_and_method(report):
+    rep, out = report
+    rows = list(csv.DictReader((out / "frames.csv").open()))
+    assert len(rows) == 2 * N_SCENES * 3
+    assert {r["method"] for r in rows} == {"paper", "fast"}
+    assert (out / "summary.json").exists()
+    assert set(rep["classes"]["fast"]) == set(widebench.CLASS_KEYS)
+
+
+@pytest.mark.parametrize("method", ["paper", "fast"])
+def test_no_silent_wrong_shape(report, method):
+    a = report[0]["methods"][method]
+    assert a["silent_wrong"] == 0, report[0]["worst"]
+
+
+def test_fast_meets_its_pixel_bounds(report):
+    """Over the frames it reconstructs: mean error <= 1 px at the median and <= 2 px at p95, tip <= 3 px."""
+    a = report[0]["methods"]["fast"]
+    assert a["mean_error_px_median"] <= 1.0, a
+    assert a["mean_error_px_p95"] <= 2.0, a
+    assert a["tip_error_px_median"] <= 3.0, a
+
+
+@pytest.mark.xfail(strict=True, reason="issue 13, open: measured 9 of 12 frames; wide-21-3 (a 3.2 px tube) is refused "
+                   "on every frame with 'side: no robot at its base'")
+def test_fast_reconstructs_95_percent(report):
+    a = report[0]["methods"]["fast"]
+    assert a["reconstructed_fraction"] >= 0.95, a
+
+
+@pytest.mark.xfail(strict=True, reason="issue 13, open: every scene of this set has a 3.2-3.4 px tube and the paper "
+                   "method refuses tubes under 4 px (two-disk erosion cannot resolve them): 0 of 12 frames")
+def test_paper_within_a_voxel(report):
+    a = report[0]["methods"]["paper"]
+    assert a["reconstructed_fraction"] >= 0.9, a
+    assert a["mean_error_voxels_median"] <= 1.0, a
