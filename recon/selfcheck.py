@@ -143,6 +143,18 @@ class SelfCheckParams:
         is short (a faint inner tube that the foreground does not show). The
         start (8 px) is the unexplained length's limit: a tip 8 footprints
         short is still good.
+    max_tip_off_foreground_px : float
+        Limit of the length (px) of the judged curve's end with no foreground
+        (nor contrast support) on it: a backbone that runs on beyond the tip
+        (or leaves the tube just before the border). 8 px, as a tip cut short:
+        the off-foreground share of a long robot hides a 20 px overrun.
+    max_behind_base_px : float
+        Limit of how far (pixel footprints: the cameras' mean mm per px there)
+        from the base the backbone reaches behind the base plane, where no
+        robot can be and no view judges it (the behind-base pixels are left
+        out). Such a point is off the robot by its distance from the base: the
+        figure is an error itself, so the limit is the 10 footprints that
+        separate good frames from wrong ones.
     """
 
     jitter_window_px: int = 1
@@ -157,6 +169,8 @@ class SelfCheckParams:
     max_off_foreground_fraction: float = 0.20
     max_centerline_rms_px: float = 2.5
     max_beyond_tip_contrast: float = 1.3
+    max_tip_off_foreground_px: float = 8.0
+    max_behind_base_px: float = 10.0
     min_visible_px: float = 10.0
     min_profile_fraction: float = 0.2
     roi_margin_px: int = 16
@@ -225,9 +239,11 @@ class SelfCheck:
         One line naming the camera and the figure furthest beyond its limit,
         e.g. ``"top: 31 % of the reprojected tube is not on foreground (limit 20 %)"``.
     figures : dict
-        Camera name -> ``{"unexplained_fraction", "off_foreground_fraction",
-        "centerline_rms_px", "visible_px"}`` (None where not measured: view not
-        judged, or no clean cross-section for the RMS).
+        Camera name -> ``{"unexplained_fraction", "unexplained_px",
+        "off_foreground_fraction", "tip_off_foreground_px", "centerline_rms_px",
+        "beyond_tip_contrast", "behind_base_px", "visible_px", "unseen_px"}``
+        (None where not measured: view not judged, no clean cross-section for
+        the RMS, ...). ``behind_base_px`` is the backbone's, the same in every view.
     ms : float
         Wall time of the check (ms).
     """
@@ -711,7 +727,9 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     method leaves out because only this view sees it.
     """
     none = {"unexplained_fraction": None, "unexplained_px": None, "off_foreground_fraction": None, "centerline_rms_px": None,
-            "visible_px": 0.0, "unseen_px": None, "beyond_tip_contrast": None}
+            "visible_px": 0.0, "unseen_px": None, "beyond_tip_contrast": None, "tip_off_foreground_px": None,
+            "behind_base_px": None}
+
     uv, depth = _dense_projection(camera, points_world_mm, params.sample_step_px)
     finite = np.all(np.isfinite(uv), axis=1) & (depth > 1e-6)
     vis = finite & camera.in_image(np.where(finite[:, None], uv, -1e9))
@@ -829,17 +847,25 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     unexplained = unexplained_px / (unexplained_px + none["visible_px"])
     # (b) is there foreground within the tolerance of each in-image sample?
     uvr = uvv - [x0, y0]
-    on = _near_foreground(fg, uvr, params.on_foreground_tolerance_px)
+    on = on_fg = _near_foreground(fg, uvr, params.on_foreground_tolerance_px)
     normals = _normals(uv[finite])[vis[finite]]
     if params.contrast_window_px > 0 and not view.binary and not on.all():
         on = on | _contrast_support(view, gray, gain_offset, uvv, normals, r_out[vis], r_in[vis], params)
     off = float(np.mean(~on))
+    # The end of the judged curve with nothing on it: a backbone that runs on beyond the tip
+    # (the share above hides a 20 px overrun of a long robot). Only where the foreground shows
+    # the tube just before (at least half of the 2 r_out px, >= 5 px): where it does not, the
+    # tube is too faint to tell where it ends from the foreground (the tip probe's case).
+    n_tail = int(np.argmax(on[::-1])) if on.any() else on.size
+    n_pre = max(5, int(math.ceil(2.0 * float(r_out[vis][-1]) / params.sample_step_px)))
+    pre = on_fg[max(0, on.size - n_tail - n_pre):on.size - n_tail]
+    tip_off = n_tail * params.sample_step_px if pre.size and pre.mean() >= 0.5 else None
     beyond = None
     if params.tip_probe_px > 0 and not view.binary and vis[np.flatnonzero(finite)[-1]]:
         # The tip itself is in view (not behind the base): does the tube go on beyond it?
         beyond = _beyond_tip(view, gray, gain_offset, uv[finite], float(r_out[finite][-1]), float(r_in[finite][-1]), params)
     if _DEBUG is not None:
-        _DEBUG[camera.name]["on"] = on
+        _DEBUG[camera.name].update(on=on, gain_offset=gain_offset)
     # (c) centerline offset across the tube, on every third sample (the RMS needs no more).
     sub = slice(None, None, 3)
     offs = _profile_offsets(fg, uvr[sub], normals[sub], r_out[vis][sub], r_in[vis][sub], params)
@@ -847,7 +873,31 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     enough = good.sum() >= max(10.0, params.min_profile_fraction * offs.size)
     rms = float(np.sqrt(np.mean(offs[good] ** 2))) if enough else None
     return {"unexplained_fraction": unexplained, "unexplained_px": unexplained_px, "off_foreground_fraction": off,
-            "centerline_rms_px": rms, "visible_px": none["visible_px"], "unseen_px": unseen_px, "beyond_tip_contrast": beyond}
+            "centerline_rms_px": rms, "visible_px": none["visible_px"], "unseen_px": unseen_px, "beyond_tip_contrast": beyond,
+            "tip_off_foreground_px": tip_off, "behind_base_px": None}
+
+
+def _behind_base_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
+    """How far the backbone reaches behind the base plane: the largest distance from the base of a point behind it (pixel footprints).
+
+    The robot leaves its base along the insertion axis: no backbone point can
+    lie behind the plane through the base across the axis, and what does is off
+    the robot by (about) its distance from the base. No view judges it (the
+    behind-base pixels are left out). In pixel footprints: the distance over
+    the cameras' mean footprint at that point (mm per px, depth / focal length).
+    """
+    b = np.asarray(rig.base_point_world_mm, np.float64)
+    pts = points_world_mm[(points_world_mm - b) @ np.asarray(rig.insertion_axis_world, np.float64) < 0.0]
+    if not len(pts):
+        return 0.0
+    fp = []
+    for name in rig.names:
+        cam = rig[name]
+        z = cam.world_to_camera(pts)[:, 2]
+        fp.append(np.where(z > 1e-6, z, np.nan) / math.sqrt(cam.K[0, 0] * cam.K[1, 1]))
+    fp = np.nanmean(np.stack(fp), axis=0)
+    ok = np.isfinite(fp) & (fp > 0)
+    return float(np.max(np.linalg.norm(pts[ok] - b, axis=1) / fp[ok])) if ok.any() else 0.0
 
 
 def _verdict(figures: dict, params: SelfCheckParams) -> str | None:
@@ -861,6 +911,10 @@ def _verdict(figures: dict, params: SelfCheckParams) -> str | None:
              lambda x, lim: f"{cam}: {100 * x:.0f} % of the foreground along the robot is not explained by the backbone (limit {100 * lim:.0f} %)"),
             ("unexplained_px", params.max_unexplained_px,
              lambda x, lim: f"{cam}: {x:.0f} px of tube along the robot are not explained by the backbone (limit {lim:.0f} px)"),
+            ("tip_off_foreground_px", params.max_tip_off_foreground_px,
+             lambda x, lim: f"{cam}: the reprojected tube's last {x:.0f} px are not on foreground (limit {lim:.0f} px)"),
+            ("behind_base_px", params.max_behind_base_px,
+             lambda x, lim: f"the backbone reaches {x:.0f} px (pixel footprints) behind the robot base (limit {lim:.0f} px)"),
             ("beyond_tip_contrast", params.max_beyond_tip_contrast,
              lambda x, lim: f"{cam}: the tube goes on beyond the reprojected tip (contrast {x:.1f}, limit {lim:.1f})"),
             ("centerline_rms_px", params.max_centerline_rms_px,
@@ -922,6 +976,9 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
             gray = gray * np.uint8(255)  # a 0/1 mask
         others = [model.rig[o] for o in model.rig.names if o != name]
         figures[name] = _judge_view(view, cam, gray, pts, (r_out, r_in), params, others, model.rig.base_point_world_mm)
+    behind = _behind_base_px(model.rig, pts)
+    for f in figures.values():
+        f["behind_base_px"] = behind
     reason = _verdict(figures, params)
     if reason is None and not any(f["unexplained_fraction"] is not None for f in figures.values()):
         reason = "the reprojected backbone is in no camera's image"

@@ -275,3 +275,30 @@ def test_noise_specks_touching_the_tube_are_not_unexplained(model, rendered):
     assert not check_backbone(model, images, rendered.truth, rendered.radii, SelfCheckParams(speck_reach=0.0)).ok
     keep = rendered.s_mm <= 0.8 * rendered.s_mm[-1]
     assert not _check(model, rendered, rendered.truth[keep], images).ok
+
+
+def test_a_backbone_that_runs_on_beyond_the_tip_is_flagged(model, rendered):
+    # 3 mm straight on past the true tip: a few % of the robot's length off foreground (far
+    # under the 20 % share), nothing unexplained; the curve's last ~27 px have nothing on them.
+    t = rendered.truth[-1] - rendered.truth[-5]
+    t /= np.linalg.norm(t)
+    longer = np.concatenate([rendered.truth, rendered.truth[-1] + np.outer(np.linspace(0.2, 3.0, 10), t)])
+    sc = _check(model, rendered, longer)
+    assert not sc.ok
+    assert "last" in sc.reason and "not on foreground" in sc.reason, sc.reason
+    assert all(f["off_foreground_fraction"] < SelfCheckParams().max_off_foreground_fraction for f in sc.figures.values())
+    assert all(f["tip_off_foreground_px"] is not None and f["tip_off_foreground_px"] <= 1.0
+               for f in _check(model, rendered, rendered.truth).figures.values())
+
+
+def test_a_backbone_that_starts_behind_the_base_is_flagged(model, rendered):
+    # A first point 2 mm behind the base plane (and 2 mm aside): no view judges it (the pixels
+    # behind the base are left out), yet no robot can be there.
+    base, axis = rendered.rig.base_point_world_mm, rendered.rig.insertion_axis_world
+    aside = np.cross(axis, [0.0, 0.0, 1.0])
+    aside /= np.linalg.norm(aside)
+    hooked = np.concatenate([[base - 2.0 * axis + 2.0 * aside], rendered.truth])
+    sc = _check(model, rendered, hooked)
+    assert not sc.ok
+    assert "behind the robot base" in sc.reason, sc.reason
+    assert _check(model, rendered, rendered.truth).figures["side"]["behind_base_px"] == 0.0
