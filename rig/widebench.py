@@ -60,25 +60,14 @@ _CSV_FIELDS = ("scene", "method", "frame", "status", "reason", *CLASS_KEYS, "foo
 def write_suite(suite: str, n: int, seed: int, directory: Path, max_pixels: int | None = None) -> list:
     """Write the suite's scene TOMLs into ``directory``; returns ``[(path, classes), ...]`` in draw order.
 
-    A file is rewritten only when its content changed, so render caches keyed by
-    the file's bytes stay valid across runs of the same suite. ``max_pixels``
-    bounds the sensor sizes drawn (see :func:`twin.scenegen.generate_suite`).
+    See :func:`twin.scenegen.write_suite`; ``max_pixels`` bounds the sensor sizes
+    drawn (:func:`twin.scenegen.generate_suite`).
     """
-    import tomli_w
+    from twin import scenegen
 
-    from twin.scenegen import generate_suite
-
-    directory.mkdir(parents=True, exist_ok=True)
-    out = []
-    for g in generate_suite(suite, n, seed, max_pixels=max_pixels):
-        path = directory / f"{g.name}.toml"
-        text = tomli_w.dumps(g.data)
-        if not path.exists() or path.read_text() != text:
-            tmp = path.with_name(f".{path.name}.tmp")
-            tmp.write_text(text)
-            tmp.replace(path)
-        out.append((path, {k: str(v) for k, v in g.classes.items()}))
-    return out
+    scenes = scenegen.generate_suite(suite, n, seed, max_pixels=max_pixels)
+    paths = scenegen.write_suite(scenes, directory)
+    return [(p, {k: str(v) for k, v in g.classes.items()}) for p, g in zip(paths, scenes)]
 
 
 def frame_footprint_mm(rig, backbone_world_mm) -> float:

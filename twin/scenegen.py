@@ -23,7 +23,7 @@ from .scene import Scene, scene_from_dict
 from .textures import KINDS, PHOTOS
 
 __all__ = ["GeneratedScene", "SUITES", "generate_suite", "draw_wide", "camera_angle_deg", "view_problem",
-           "shrink_images", "angle_class", "resolution_class", "IMAGE_SIZES"]
+           "shrink_images", "angle_class", "resolution_class", "IMAGE_SIZES", "write_suite"]
 
 SUITES = ("wide",)
 
@@ -457,3 +457,32 @@ def shrink_images(data: dict, factor: float) -> dict:
     if "backdrop" in d and d["backdrop"].get("texture_px"):
         d["backdrop"]["texture_px"] = max(256, int(d["backdrop"]["texture_px"] * factor))
     return d
+
+
+def write_suite(scenes: list, directory) -> list:
+    """Write generated scenes as ``directory/<name>.toml`` plus ``directory/index.json``; returns the TOML paths.
+
+    The one writer of suite files (``ctr-bench scenes generate`` and the wide
+    benchmark). A file is replaced (atomically) only when its content changed, so
+    render caches keyed by a scene file's bytes stay valid when a suite is written
+    again. ``index.json`` lists ``{"name", "file", "classes"}`` in draw order.
+    """
+    import json
+    from pathlib import Path
+
+    import tomli_w
+
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    paths, index = [], []
+    for s in scenes:
+        path = out / f"{s.name}.toml"
+        text = tomli_w.dumps(s.data)
+        if not path.exists() or path.read_text() != text:
+            tmp = path.with_name(f".{path.name}.tmp")
+            tmp.write_text(text)
+            tmp.replace(path)
+        paths.append(path)
+        index.append({"name": s.name, "file": path.name, "classes": s.classes})
+    (out / "index.json").write_text(json.dumps(index, indent=2) + "\n")
+    return paths
