@@ -248,6 +248,96 @@ def view_problem(scene: Scene, base: str, backbones: list | None = None) -> str 
 
 
 # ----------------------------------------------------------------------------- one draw
+def _draw_rig(rng, target: np.ndarray, width: int, height: int, pixel_um: float) -> dict:
+    """The ``[rig]`` table before focal lengths: orbits giving the angle between the axes, mounts, distortion."""
+    # Angle between the optical axes: the top camera orbits about the insertion axis by
+    # (90 - angle) * w and the side one by -(90 - angle) * (1 - w); then both get a yaw or
+    # pitch of their own (changing the angle a little, checked below) and a common roll.
+    angle = rng.uniform(*ANGLE_DEG)
+    w = rng.uniform(0.0, 1.0)
+    roll = rng.uniform(-30.0, 30.0)
+    orbits = {
+        "side": [(angle - 90.0) * (1 - w) + roll, 0.0, rng.uniform(-25.0, 25.0)],
+        "top": [(90.0 - angle) * w + roll, rng.uniform(-25.0, 25.0), 0.0],
+    }
+    rig = {"focal_length_mm": 10.0, "pixel_size_um": pixel_um, "target_mm": [_r(t, 3) for t in target], "distance_mm": 300.0}
+    for cam in ("side", "top"):
+        pp = rng.uniform(-0.03, 0.03, 2) * np.array([width, height])
+        dist = _distortion(rng)
+        rig[cam] = {
+            "distance_mm": _r(rng.uniform(*DISTANCE_MM), 2),
+            "orbit_deg": [_r(o, 3) for o in orbits[cam]],
+            "rotation_deg": _mount_rotation(rng),
+            "offset_mm": [_r(o, 3) for o in rng.uniform(-3.0, 3.0, 3)],
+            "principal_offset_px": [_r(p, 2) for p in pp],
+            "distortion": dist,
+        }
+    return rig
+
+
+def _fit_focal_lengths(rng, data: dict, name: str, tube_tables: list, aim_pts: np.ndarray, width: int, height: int,
+                       pixel_um: float) -> dict | None:
+    """Set each camera's ``focal_length_mm`` in ``data["rig"]``; returns focal lengths (px) by camera, or None to redraw."""
+    rig = data["rig"]
+    # Focal lengths: first at 10 mm, then scaled so the robot spans the drawn fraction of the
+    # image, raised where the thinnest tube would be under 3 px wide.
+    probe = scene_from_dict(data, source=name)
+    thinnest = min(t["outer_diameter_mm"] for t in tube_tables)
+    f_px_by_cam = {}
+    for cam_name, cam in probe.rig.cameras.items():
+        uv, z = cam.project(aim_pts)
+        ext = np.nanmax(uv, axis=0) - np.nanmin(uv, axis=0)
+        span0 = max(ext[0] / width, ext[1] / height)
+        f0_px = float(cam.K[0, 0])
+        f_px = f0_px * rng.uniform(*SPAN) / max(span0, 1e-9)
+        f_px = max(f_px, 1.05 * MIN_TUBE_PX * float(np.max(z)) / thinnest)
+        if f_px > 1.3 * max(width, height) / 0.35 or f_px < 0.3 * max(width, height):
+            return None  # field of view narrower than 15 deg or wider than ~115 deg: no machine-vision lens
+        r_corner = 0.5 * np.hypot(width, height) / f_px
+        if not _monotonic(cam.dist, 1.2 * r_corner):
+            return None
+        rig[cam_name]["focal_length_mm"] = _r(f_px * pixel_um * 1e-3, 4)
+        f_px_by_cam[cam_name] = f_px
+    return f_px_by_cam
+
+
+def _draw_backdrop(rng, scene: Scene, classes: dict, base: str, pts: np.ndarray, target: np.ndarray, width: int,
+                   height: int, rgb: bool) -> tuple:
+    """The ``[backdrop]`` table (planes behind the robot and unit, kind, colours, clutter, tube look) and the contrast class."""
+    # Backdrop planes beyond the robot (and the actuation unit) along each camera's line of sight.
+    unit = base == "in-view-unit" or (base == "outside" and rng.random() < 0.5)
+    solid = pts
+    if unit:
+        corners = np.array([[x, y, z] for x in (-95.0, -18.0) for y in (-14.0, 14.0) for z in (-14.0, 14.0)])
+        solid = np.concatenate([pts, corners])  # base frame = world frame here (base at 0, insertion +x)
+    behind = 0.0
+    for cam in scene.rig.cameras.values():
+        los = target - cam.center_world_mm
+        los /= np.linalg.norm(los)
+        behind = max(behind, float(((solid - target) @ los).max()))
+    contrast = "low" if rng.random() < 0.3 else "normal"
+    kind = classes["backdrop"]
+    c1, c2 = _colors(rng, contrast, rgb)
+    backdrop = {
+        "kind": kind,
+        "color": c1,
+        "color2": c2,
+        "planes": "per-camera",
+        "behind_mm": _r(behind + 10.0 + rng.uniform(5.0, 120.0), 2),
+        "texture_px": auto_texture_px(width, height),
+        "pattern_scale": _r(rng.uniform(0.6, 2.0), 3),
+        "clutter": int(rng.integers(0, 7)),
+        "actuation_unit": bool(unit),
+        "mount_posts": False,
+        "robot_color": [_r(rng.uniform(0.3, 0.8), 3)] * 3,
+        "robot_metallic": _r(rng.uniform(0.3, 0.9), 3),
+        "robot_roughness": _r(rng.uniform(0.2, 0.6), 3),
+    }
+    if kind == "photo":
+        backdrop["photo"] = PHOTOS[int(rng.integers(len(PHOTOS)))]
+    return backdrop, contrast
+
+
 def draw_wide(rng: np.random.Generator, name: str, classes: dict, max_pixels: int | None = None) -> dict | None:
     """One draw of the "wide" suite with the given class labels: the TOML dict, or None to redraw.
 
@@ -288,84 +378,17 @@ def draw_wide(rng: np.random.Generator, name: str, classes: dict, max_pixels: in
     else:
         target = 0.5 * (lo + hi) + rng.uniform(-0.08, 0.08, 3) * (hi - lo)
         aim_pts = pts
-    # Angle between the optical axes: the top camera orbits about the insertion axis by
-    # (90 - angle) * w and the side one by -(90 - angle) * (1 - w); then both get a yaw or
-    # pitch of their own (changing the angle a little, checked below) and a common roll.
-    angle = rng.uniform(*ANGLE_DEG)
-    w = rng.uniform(0.0, 1.0)
-    roll = rng.uniform(-30.0, 30.0)
-    orbits = {
-        "side": [(angle - 90.0) * (1 - w) + roll, 0.0, rng.uniform(-25.0, 25.0)],
-        "top": [(90.0 - angle) * w + roll, rng.uniform(-25.0, 25.0), 0.0],
-    }
-    rig = {"focal_length_mm": 10.0, "pixel_size_um": pixel_um, "target_mm": [_r(t, 3) for t in target], "distance_mm": 300.0}
-    for cam in ("side", "top"):
-        pp = rng.uniform(-0.03, 0.03, 2) * np.array([width, height])
-        dist = _distortion(rng)
-        rig[cam] = {
-            "distance_mm": _r(rng.uniform(*DISTANCE_MM), 2),
-            "orbit_deg": [_r(o, 3) for o in orbits[cam]],
-            "rotation_deg": _mount_rotation(rng),
-            "offset_mm": [_r(o, 3) for o in rng.uniform(-3.0, 3.0, 3)],
-            "principal_offset_px": [_r(p, 2) for p in pp],
-            "distortion": dist,
-        }
+    rig = _draw_rig(rng, target, width, height, pixel_um)
     data["rig"] = rig
-    # Focal lengths: first at 10 mm, then scaled so the robot spans the drawn fraction of the
-    # image, raised where the thinnest tube would be under 3 px wide.
-    probe = scene_from_dict(data, source=name)
-    thinnest = min(t["outer_diameter_mm"] for t in tube_tables)
-    f_px_by_cam = {}
-    for cam_name, cam in probe.rig.cameras.items():
-        uv, z = cam.project(aim_pts)
-        ext = np.nanmax(uv, axis=0) - np.nanmin(uv, axis=0)
-        span0 = max(ext[0] / width, ext[1] / height)
-        f0_px = float(cam.K[0, 0])
-        f_px = f0_px * rng.uniform(*SPAN) / max(span0, 1e-9)
-        f_px = max(f_px, 1.05 * MIN_TUBE_PX * float(np.max(z)) / thinnest)
-        if f_px > 1.3 * max(width, height) / 0.35 or f_px < 0.3 * max(width, height):
-            return None  # field of view narrower than 15 deg or wider than ~115 deg: no machine-vision lens
-        r_corner = 0.5 * np.hypot(width, height) / f_px
-        if not _monotonic(cam.dist, 1.2 * r_corner):
-            return None
-        rig[cam_name]["focal_length_mm"] = _r(f_px * pixel_um * 1e-3, 4)
-        f_px_by_cam[cam_name] = f_px
+    f_px_by_cam = _fit_focal_lengths(rng, data, name, tube_tables, aim_pts, width, height, pixel_um)
+    if f_px_by_cam is None:
+        return None
     scene = scene_from_dict(data, source=name)
     if not ANGLE_DEG[0] <= camera_angle_deg(scene) <= ANGLE_DEG[1]:
         return None
     if view_problem(scene, base, backbones):
         return None
-    # Backdrop planes beyond the robot (and the actuation unit) along each camera's line of sight.
-    unit = base == "in-view-unit" or (base == "outside" and rng.random() < 0.5)
-    solid = pts
-    if unit:
-        corners = np.array([[x, y, z] for x in (-95.0, -18.0) for y in (-14.0, 14.0) for z in (-14.0, 14.0)])
-        solid = np.concatenate([pts, corners])  # base frame = world frame here (base at 0, insertion +x)
-    behind = 0.0
-    for cam in scene.rig.cameras.values():
-        los = target - cam.center_world_mm
-        los /= np.linalg.norm(los)
-        behind = max(behind, float(((solid - target) @ los).max()))
-    contrast = "low" if rng.random() < 0.3 else "normal"
-    kind = classes["backdrop"]
-    c1, c2 = _colors(rng, contrast, rgb)
-    data["backdrop"] = {
-        "kind": kind,
-        "color": c1,
-        "color2": c2,
-        "planes": "per-camera",
-        "behind_mm": _r(behind + 10.0 + rng.uniform(5.0, 120.0), 2),
-        "texture_px": auto_texture_px(width, height),
-        "pattern_scale": _r(rng.uniform(0.6, 2.0), 3),
-        "clutter": int(rng.integers(0, 7)),
-        "actuation_unit": bool(unit),
-        "mount_posts": False,
-        "robot_color": [_r(rng.uniform(0.3, 0.8), 3)] * 3,
-        "robot_metallic": _r(rng.uniform(0.3, 0.9), 3),
-        "robot_roughness": _r(rng.uniform(0.2, 0.6), 3),
-    }
-    if kind == "photo":
-        data["backdrop"]["photo"] = PHOTOS[int(rng.integers(len(PHOTOS)))]
+    data["backdrop"], contrast = _draw_backdrop(rng, scene, classes, base, pts, target, width, height, rgb)
     data["lighting"] = {"ambient": _r(rng.uniform(0.15, 0.6), 3), "lights": _lights(rng, target)}
     data["noise"] = _noise(rng, max(f_px_by_cam.values()))
     final = scene_from_dict(data, source=name)
