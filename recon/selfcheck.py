@@ -716,6 +716,108 @@ def _unseen_share(camera, others: list, ys: np.ndarray, xs: np.ndarray, uv_bb: n
     return float(np.mean(~seen.reshape(len(xy), z.shape[1]).any(axis=1)))
 
 
+def _band_and_foreground(view: _ViewModel, camera, gray: np.ndarray, uv_curve: np.ndarray, roi: list, r_band: float,
+                         params: SelfCheckParams) -> tuple:
+    """The reprojected tube's band and the foreground in a region of interest, grown until the robot's foreground fits.
+
+    Returns ``(roi, band, fg, labels, stats, band_lab, touching, gain_offset)``: the final
+    region ``[x0, y0, x1, y1]`` (px), the band and foreground masks (uint8, region
+    coordinates), the foreground's connected components with their stats, the
+    component labels under the band, the labels touching it, and the fitted
+    ``(gain, offset)``.
+    """
+    W, H = camera.width, camera.height
+    thickness = 2 * int(math.ceil(r_band)) + 1
+    # The band's outline: every 4th dense sample is close enough to the curve for a thick line.
+    poly = uv_curve
+    poly = np.concatenate([poly[:-1:4], poly[-1:]])
+    for _ in range(int(params.max_roi_growth) + 1):
+        x0, y0, x1, y1 = roi
+        band = np.zeros((y1 - y0, x1 - x0), np.uint8)
+        # Sub-pixel polyline (4 fractional bits); the tube drawn with its outermost radius plus the tolerance.
+        pl = np.rint((poly - [x0, y0]) * 16).astype(np.int32)
+        cv2.polylines(band, [pl.reshape(-1, 1, 2)], False, 1, thickness=thickness, lineType=cv2.LINE_8, shift=4)
+        _cut_tip_cap(band, uv_curve - [x0, y0], r_band, params.explain_tolerance_px)
+        gain_offset = []
+        fg = _foreground_u8(view, gray, tuple(roi), exclude=band, gain_out=gain_offset)
+        # Close 1-px cracks (specular highlights as bright as the backdrop) before measuring runs and regions.
+        fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, _CLOSE_KERNEL)
+        if view.keep is not None:
+            fg = cv2.bitwise_and(fg, view.keep[y0:y1, x0:x1])
+        n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
+        band_px = cv2.findNonZero(band)
+        band_px = np.zeros((0, 2), np.int32) if band_px is None else band_px.reshape(-1, 2)
+        band_lab = labels[band_px[:, 1], band_px[:, 0]]
+        band_lab = band_lab[band_lab > 0]
+        touching = np.unique(band_lab)
+        grow = [False] * 4
+        for lab in touching:
+            lx, ly, lw, lh = stats[lab, :4]
+            grow[0] |= lx == 0 and x0 > 0
+            grow[1] |= ly == 0 and y0 > 0
+            grow[2] |= lx + lw == x1 - x0 and x1 < W
+            grow[3] |= ly + lh == y1 - y0 and y1 < H
+        if not any(grow):
+            break
+        # Robot foreground runs out of the region: double it towards those sides and look again.
+        dx, dy = x1 - x0, y1 - y0
+        roi = [max(0, x0 - dx) if grow[0] else x0, max(0, y0 - dy) if grow[1] else y0,
+               min(W, x1 + dx) if grow[2] else x1, min(H, y1 + dy) if grow[3] else y1]
+    return roi, band, fg, labels, stats, band_lab, touching, gain_offset
+
+
+def _drop_specks(band: np.ndarray, labels: np.ndarray, stats: np.ndarray, touching: np.ndarray, n_unexplained: int,
+                 r_out_median_px: float, params: SelfCheckParams) -> tuple:
+    """Unexplained foreground less the specks clinging to the band: ``(n_unexplained, ys, xs)`` (pixel count, kept pixels in region coordinates)."""
+    # Only what reaches well away from the band can be tube: noise specks clinging to it (a
+    # frame noisier than its backgrounds) reach a few px, a tube the band left out (a tip
+    # cut short, a backbone that left the tube) runs on. Pieces of the unexplained foreground
+    # that reach less than ``speck_reach`` tube diameters (plus the tolerance) from the band
+    # are dropped. Measured only where the length could fail (distance transform).
+    ys, xs = [], []
+    not_band = (band == 0).view(np.uint8)
+    dist = cv2.distanceTransform(not_band, cv2.DIST_L2, 3)
+    reach = params.speck_reach * 2.0 * r_out_median_px + params.explain_tolerance_px
+    for lab in touching:
+        lx, ly, lw, lh = (int(v) for v in stats[lab, :4])
+        m = (labels[ly:ly + lh, lx:lx + lw] == lab).view(np.uint8)
+        m[band[ly:ly + lh, lx:lx + lw] != 0] = 0
+        n_p, lab_p, st_p, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+        dsub = dist[ly:ly + lh, lx:lx + lw]
+        for q in range(1, n_p):
+            qx, qy, qw, qh = (int(v) for v in st_p[q, :4])
+            mq = lab_p[qy:qy + qh, qx:qx + qw] == q
+            if float(dsub[qy:qy + qh, qx:qx + qw][mq].max()) < reach:
+                n_unexplained -= int(st_p[q, cv2.CC_STAT_AREA])
+                continue
+            py, px = np.nonzero(mq)
+            xs.append(px + qx + lx)
+            ys.append(py + qy + ly)
+    ys = np.concatenate(ys) if ys else np.zeros(0, int)
+    xs = np.concatenate(xs) if xs else np.zeros(0, int)
+    return n_unexplained, ys, xs
+
+
+def _unseen_share_of(camera, others, ys: np.ndarray, xs: np.ndarray, uvv: np.ndarray, depth_vis: np.ndarray,
+                     points_world_mm: np.ndarray, base_world_mm, params: SelfCheckParams) -> float:
+    """Share of the unexplained pixels (image rows ``ys``, columns ``xs``) that no other camera can see."""
+    # Foreground no other camera can see (the robot entering across a border of only this
+    # view) cannot be triangulated by any method: it is not required. Measured only where
+    # it could matter (it is the costly part).
+    uv_g, depth_g = uvv, depth_vis
+    if base_world_mm is not None:
+        # The robot leaves the base: a backbone that starts where both cameras first see the
+        # robot continues, unreconstructed, on the line back to the base (near it the tube is
+        # straight). Its samples (in the image or not) pin the depth of the foreground there,
+        # where the distance to the reconstructed samples alone would allow any inclination.
+        lead = np.stack([np.asarray(base_world_mm, np.float64), points_world_mm[0]])
+        if np.linalg.norm(lead[1] - lead[0]) > 1e-6:
+            uvl, dl = _dense_projection(camera, lead, params.sample_step_px)
+            okl = np.all(np.isfinite(uvl), axis=1) & (dl > 1e-6)
+            uv_g, depth_g = np.concatenate([uvl[okl], uvv]), np.concatenate([dl[okl], depth_g])
+    return _unseen_share(camera, list(others), ys, xs, uv_g, depth_g, params)
+
+
 def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.ndarray, radii_mm: tuple,
                 params: SelfCheckParams, others: list = (), base_world_mm=None) -> dict:
     """The three figures of one view (None where not measured).
@@ -750,42 +852,8 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     uvv = uv[vis]
     roi = [max(0, int(np.floor(uvv[:, 0].min())) - pad), max(0, int(np.floor(uvv[:, 1].min())) - pad),
            min(W, int(np.ceil(uvv[:, 0].max())) + pad + 1), min(H, int(np.ceil(uvv[:, 1].max())) + pad + 1)]
-    thickness = 2 * int(math.ceil(r_band)) + 1
-    # The band's outline: every 4th dense sample is close enough to the curve for a thick line.
-    poly = uv[finite]
-    poly = np.concatenate([poly[:-1:4], poly[-1:]])
-    for _ in range(int(params.max_roi_growth) + 1):
-        x0, y0, x1, y1 = roi
-        band = np.zeros((y1 - y0, x1 - x0), np.uint8)
-        # Sub-pixel polyline (4 fractional bits); the tube drawn with its outermost radius plus the tolerance.
-        pl = np.rint((poly - [x0, y0]) * 16).astype(np.int32)
-        cv2.polylines(band, [pl.reshape(-1, 1, 2)], False, 1, thickness=thickness, lineType=cv2.LINE_8, shift=4)
-        _cut_tip_cap(band, uv[finite] - [x0, y0], r_band, params.explain_tolerance_px)
-        gain_offset = []
-        fg = _foreground_u8(view, gray, tuple(roi), exclude=band, gain_out=gain_offset)
-        # Close 1-px cracks (specular highlights as bright as the backdrop) before measuring runs and regions.
-        fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, _CLOSE_KERNEL)
-        if view.keep is not None:
-            fg = cv2.bitwise_and(fg, view.keep[y0:y1, x0:x1])
-        n_lab, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
-        band_px = cv2.findNonZero(band)
-        band_px = np.zeros((0, 2), np.int32) if band_px is None else band_px.reshape(-1, 2)
-        band_lab = labels[band_px[:, 1], band_px[:, 0]]
-        band_lab = band_lab[band_lab > 0]
-        touching = np.unique(band_lab)
-        grow = [False] * 4
-        for lab in touching:
-            lx, ly, lw, lh = stats[lab, :4]
-            grow[0] |= lx == 0 and x0 > 0
-            grow[1] |= ly == 0 and y0 > 0
-            grow[2] |= lx + lw == x1 - x0 and x1 < W
-            grow[3] |= ly + lh == y1 - y0 and y1 < H
-        if not any(grow):
-            break
-        # Robot foreground runs out of the region: double it towards those sides and look again.
-        dx, dy = x1 - x0, y1 - y0
-        roi = [max(0, x0 - dx) if grow[0] else x0, max(0, y0 - dy) if grow[1] else y0,
-               min(W, x1 + dx) if grow[2] else x1, min(H, y1 + dy) if grow[3] else y1]
+    roi, band, fg, labels, stats, band_lab, touching, gain_offset = _band_and_foreground(view, camera, gray, uv[finite], roi,
+                                                                                          r_band, params)
     x0, y0 = roi[0], roi[1]
     if _DEBUG is not None:
         _DEBUG[camera.name] = dict(roi=tuple(roi), fg=fg > 0, band=band > 0, labels=labels, touching=touching, gray=gray, uv=uv,
@@ -799,50 +867,11 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     unexplained_px = n_unexplained / px_width
     unseen_px = None
     if unexplained_px > 0.5 * params.max_unexplained_px:
-        # Only what reaches well away from the band can be tube: noise specks clinging to it (a
-        # frame noisier than its backgrounds) reach a few px, a tube the band left out (a tip
-        # cut short, a backbone that left the tube) runs on. Pieces of the unexplained foreground
-        # that reach less than ``speck_reach`` tube diameters (plus the tolerance) from the band
-        # are dropped. Measured only where the length could fail (distance transform).
-        ys, xs = [], []
-        not_band = (band == 0).view(np.uint8)
-        dist = cv2.distanceTransform(not_band, cv2.DIST_L2, 3)
-        reach = params.speck_reach * 2.0 * float(np.median(r_out[vis])) + params.explain_tolerance_px
-        for lab in touching:
-            lx, ly, lw, lh = (int(v) for v in stats[lab, :4])
-            m = (labels[ly:ly + lh, lx:lx + lw] == lab).view(np.uint8)
-            m[band[ly:ly + lh, lx:lx + lw] != 0] = 0
-            n_p, lab_p, st_p, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
-            dsub = dist[ly:ly + lh, lx:lx + lw]
-            for q in range(1, n_p):
-                qx, qy, qw, qh = (int(v) for v in st_p[q, :4])
-                mq = lab_p[qy:qy + qh, qx:qx + qw] == q
-                if float(dsub[qy:qy + qh, qx:qx + qw][mq].max()) < reach:
-                    n_unexplained -= int(st_p[q, cv2.CC_STAT_AREA])
-                    continue
-                py, px = np.nonzero(mq)
-                xs.append(px + qx + lx)
-                ys.append(py + qy + ly)
+        n_unexplained, ys, xs = _drop_specks(band, labels, stats, touching, n_unexplained, float(np.median(r_out[vis])), params)
         unexplained_px = n_unexplained / px_width
-        ys = np.concatenate(ys) if ys else np.zeros(0, int)
-        xs = np.concatenate(xs) if xs else np.zeros(0, int)
     if others and unexplained_px > 0.5 * params.max_unexplained_px:
-        # Foreground no other camera can see (the robot entering across a border of only this
-        # view) cannot be triangulated by any method: it is not required. Measured only where
-        # it could matter (it is the costly part).
-        uv_g, depth_g = uvv, depth[vis]
-        if base_world_mm is not None:
-            # The robot leaves the base: a backbone that starts where both cameras first see the
-            # robot continues, unreconstructed, on the line back to the base (near it the tube is
-            # straight). Its samples (in the image or not) pin the depth of the foreground there,
-            # where the distance to the reconstructed samples alone would allow any inclination.
-            lead = np.stack([np.asarray(base_world_mm, np.float64), points_world_mm[0]])
-            if np.linalg.norm(lead[1] - lead[0]) > 1e-6:
-                uvl, dl = _dense_projection(camera, lead, params.sample_step_px)
-                okl = np.all(np.isfinite(uvl), axis=1) & (dl > 1e-6)
-                uv_g, depth_g = np.concatenate([uvl[okl], uvv]), np.concatenate([dl[okl], depth_g])
-        unseen = _unseen_share(camera, list(others), ys + y0, xs + x0, uv_g, depth_g, params)
-        unseen_px = unseen * unexplained_px
+        share = _unseen_share_of(camera, others, ys + y0, xs + x0, uvv, depth[vis], points_world_mm, base_world_mm, params)
+        unseen_px = share * unexplained_px
         unexplained_px -= unseen_px
     unexplained = unexplained_px / (unexplained_px + none["visible_px"])
     # (b) is there foreground within the tolerance of each in-image sample?
