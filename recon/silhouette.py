@@ -216,29 +216,14 @@ def extract_silhouette(
         )
     binary = np.greater(diff, params.threshold).view(np.uint8)
     if low_threshold is not None and low_threshold < params.threshold:
-        weak = np.greater(diff, low_threshold).view(np.uint8)
-        nw, wlab = cv2.connectedComponentsWithAlgorithm(weak, 8, cv2.CV_32S, cv2.CCL_GRANA)
-        seeded = np.zeros(nw, bool)
-        seeded[wlab[binary.view(bool)]] = True
-        seeded[0] = False
-        binary = seeded[wlab].view(np.uint8)
+        binary = _hysteresis(diff, binary, low_threshold)
     # Grana's algorithm with stats is ~3x faster than the default on 1024x768.
     n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(binary, 8, cv2.CV_32S, cv2.CCL_GRANA)
     if n <= 1:
         raise FrameError(f"no silhouette (no pixel above {params.threshold:g})", camera_name)
     group_of = None
     if tube_radii_px is not None and params.group_gap_fraction > 0 and n > 2:
-        gap = params.group_gap_fraction * 2.0 * float(max(tube_radii_px))
-        # Only pieces at least a tube's width square are grouped: noise specks of a
-        # low threshold, a few pixels each, would otherwise chain across the frame.
-        piece_px = max(4, int((2.0 * float(min(tube_radii_px))) ** 2))
-        small = stats[:, cv2.CC_STAT_AREA] < piece_px
-        small[0] = False
-        if small.any():
-            binary = (binary.view(bool) & ~small[labels]).view(np.uint8)
-        n, labels, stats, group_of = _group_regions(binary, labels, stats, gap)
-        if n <= 1:
-            raise FrameError(f"no silhouette (only specks above {params.threshold:g}, none of {piece_px} px)", camera_name)
+        n, labels, stats, group_of = _group_pieces(binary, labels, stats, tube_radii_px, params, camera_name)
     areas = stats[1:, cv2.CC_STAT_AREA]
     order = [int(i) + 1 for i in np.argsort(areas, kind="stable")[::-1]]
     a0 = int(stats[order[0], cv2.CC_STAT_AREA])
@@ -288,7 +273,7 @@ def extract_silhouette(
         raise FrameError(f"robot leaves the view at the {where} border{'s' if len(off) > 1 else ''}", camera_name)
     region = labels == largest if len(members) == 1 else np.isin(labels, members)
     if group_of is not None:
-        region &= binary.view(bool)
+        region &= group_of.view(bool)
     close_px = 0
     if tube_radii_px is not None and params.close_tube_fraction > 0:
         close_px = max(1, int(round(params.close_tube_fraction * float(min(tube_radii_px)))))
@@ -297,6 +282,35 @@ def extract_silhouette(
     if close_px or params.fill_holes:
         region = _close_and_fill(region, (x, y, w, h), close_px, params.fill_holes, max_hole_radius_px)
     return region
+
+
+def _hysteresis(diff: np.ndarray, strong: np.ndarray, low_threshold: float) -> np.ndarray:
+    """Pixels above ``low_threshold`` connected (8-neighbours) to a pixel of ``strong`` (uint8 masks)."""
+    weak = np.greater(diff, low_threshold).view(np.uint8)
+    nw, wlab = cv2.connectedComponentsWithAlgorithm(weak, 8, cv2.CV_32S, cv2.CCL_GRANA)
+    seeded = np.zeros(nw, bool)
+    seeded[wlab[strong.view(bool)]] = True
+    seeded[0] = False
+    return seeded[wlab].view(np.uint8)
+
+
+def _group_pieces(binary: np.ndarray, labels: np.ndarray, stats: np.ndarray, tube_radii_px, params: SilhouetteParams,
+                  camera_name) -> tuple:
+    """Regions less than ``group_gap_fraction`` tube diameters apart as one (see :func:`_group_regions`).
+
+    Only pieces at least a tube's width square are grouped: noise specks of a low
+    threshold, a few pixels each, would otherwise chain across the frame.
+    """
+    gap = params.group_gap_fraction * 2.0 * float(max(tube_radii_px))
+    piece_px = max(4, int((2.0 * float(min(tube_radii_px))) ** 2))
+    small = stats[:, cv2.CC_STAT_AREA] < piece_px
+    small[0] = False
+    if small.any():
+        binary = (binary.view(bool) & ~small[labels]).view(np.uint8)
+    n, labels, stats, group_of = _group_regions(binary, labels, stats, gap)
+    if n <= 1:
+        raise FrameError(f"no silhouette (only specks above {params.threshold:g}, none of {piece_px} px)", camera_name)
+    return n, labels, stats, group_of
 
 
 # Regions, largest first, whose width is checked (the robot is among the largest).
