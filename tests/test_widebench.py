@@ -77,3 +77,17 @@ def test_tables_and_json_break_down_by_class():
     assert js["icp"] == {"skipped": "not installed"}
     text = W.format_suite(report)
     assert "backdrop=photo" in text and "icp: skipped: not installed" in text
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["scenes/paper.toml"], "give either a SCENE or --suite, not both"),
+    (["--n", "0"], "--n must be >= 1, got 0"),
+    (["--seed", "-1"], "--seed must be >= 0, got -1"),
+    (["--max-megapixels", "0.1"], "--max-megapixels must be >= 0.3072"),
+])
+def test_bad_suite_options_are_one_line_errors(argv, message, capsys):
+    from rig.cli import main
+
+    assert main(["bench", "--suite", "wide", *argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err

@@ -319,6 +319,12 @@ def _run_suite(args) -> int:
     if args.max_megapixels is not None and args.max_megapixels <= 0:
         raise ValueError(f"--max-megapixels must be > 0, got {args.max_megapixels}")
     max_pixels = int(args.max_megapixels * 1e6) if args.max_megapixels else None
+    from twin.scenegen import IMAGE_SIZES
+
+    smallest = IMAGE_SIZES[0][0] * IMAGE_SIZES[0][1]
+    if max_pixels is not None and max_pixels < smallest:
+        raise ValueError(f"--max-megapixels must be >= {smallest / 1e6:g} (the smallest sensor drawn, "
+                         f"{IMAGE_SIZES[0][0]}x{IMAGE_SIZES[0][1]}), got {args.max_megapixels:g}")
     report = widebench.run_suite(args.suite, args.n, args.seed, methods, out, Path(args.cache_dir),
                                  selfcheck=not args.no_selfcheck, quiet=args.quiet, max_pixels=max_pixels)
     if args.json:
