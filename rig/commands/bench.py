@@ -303,6 +303,19 @@ def bench(scene, methods, cache_dir: Path, repeats: int, quiet: bool, factor: fl
     return results
 
 
+def _max_pixels(megapixels) -> int | None:
+    """``--max-megapixels`` as a pixel count (None: every sensor size), checked against the smallest sensor drawn."""
+    from twin.scenegen import IMAGE_SIZES
+
+    if megapixels is None:
+        return None
+    smallest = IMAGE_SIZES[0][0] * IMAGE_SIZES[0][1]
+    if not megapixels * 1e6 >= smallest:
+        raise ValueError(f"--max-megapixels must be >= {smallest / 1e6:g} (the smallest sensor drawn, "
+                         f"{IMAGE_SIZES[0][0]}x{IMAGE_SIZES[0][1]}), got {megapixels:g}")
+    return int(megapixels * 1e6)
+
+
 def _run_suite(args) -> int:
     """``bench --suite NAME``: the generalization benchmark of :mod:`rig.widebench`."""
     from rig import widebench
@@ -313,18 +326,10 @@ def _run_suite(args) -> int:
         raise ValueError(f"--n must be >= 1, got {args.n}")
     if args.seed < 0:
         raise ValueError(f"--seed must be >= 0, got {args.seed}")
+    max_pixels = _max_pixels(args.max_megapixels)
     pin_one_core()
     methods = [m.strip() for m in args.methods.split(",")] if args.methods else list(METHODS)
     out = Path(args.out) if args.out else Path("out") / f"bench-{args.suite}-n{args.n}-seed{args.seed}"
-    if args.max_megapixels is not None and args.max_megapixels <= 0:
-        raise ValueError(f"--max-megapixels must be > 0, got {args.max_megapixels}")
-    max_pixels = int(args.max_megapixels * 1e6) if args.max_megapixels else None
-    from twin.scenegen import IMAGE_SIZES
-
-    smallest = IMAGE_SIZES[0][0] * IMAGE_SIZES[0][1]
-    if max_pixels is not None and max_pixels < smallest:
-        raise ValueError(f"--max-megapixels must be >= {smallest / 1e6:g} (the smallest sensor drawn, "
-                         f"{IMAGE_SIZES[0][0]}x{IMAGE_SIZES[0][1]}), got {args.max_megapixels:g}")
     report = widebench.run_suite(args.suite, args.n, args.seed, methods, out, Path(args.cache_dir),
                                  selfcheck=not args.no_selfcheck, quiet=args.quiet, max_pixels=max_pixels)
     if args.json:
