@@ -202,6 +202,47 @@ def summarize(records: list, method: str, params, session_dir, mm_px: float, sel
     }
 
 
+def _prepare_check(session: Session, method: str, params, backgrounds: dict, selfcheck):
+    """The self-check model and the tube radii (mm) it draws with; ``(None, None)`` when ``selfcheck`` is None."""
+    if selfcheck is None:
+        return None, None
+    radii_mm = selfcheck_tube_radii_mm(session, params)
+    if radii_mm is None:
+        raise SessionError(f"{session.dir / 'session.json'}: no robot tubes and method {method!r} has no tube radii: "
+                           "the self-check cannot draw the tube (reconstruct_session(selfcheck=None) skips it)")
+    try:
+        return prepare_selfcheck(session.rig, backgrounds, selfcheck), radii_mm
+    except ValueError as exc:
+        raise SessionError(_background_error(session, exc)) from None
+
+
+def _describe(rec: dict, result, pts: np.ndarray) -> None:
+    """What a reconstructed frame's record says of its backbone (points, length, tip, stages' times, voxels)."""
+    rec.update(
+        n_points=int(len(pts)),
+        length_mm=_finite(result.length_mm),
+        tip_world_mm=[float(v) for v in result.tip_world_mm],
+        transition_s_mm=_finite(result.transition_s_mm),
+        timings_ms={k: round(float(v), 3) for k, v in result.timings_ms.items()},
+    )
+    voxel = getattr(result, "voxel_size_mm", None)
+    if voxel is not None:
+        rec["voxel_size_mm"] = [float(v) for v in np.broadcast_to(np.asarray(voxel, float), (3,))]
+
+
+def _score(rec: dict, session: Session, index: int, pts: np.ndarray) -> None:
+    """The frame's errors against the session's ground truth, if it has any; a bad truth file costs the score only."""
+    try:
+        truth = session.truth(index)
+        if truth is not None:
+            if "backbone_world_mm" not in truth:
+                raise SessionError(f"{session.dir / 'truth' / f'{index:06d}.npz'}: no backbone_world_mm array")
+            errs = backbone_errors(pts, truth["backbone_world_mm"], session.rig)
+            rec.update({k: _finite(v) for k, v in errs.items()})
+    except Exception as exc:  # noqa: BLE001 - a bad truth file costs the score, not the frame
+        rec["note"] = f"not scored: {_one_line(exc)}"
+
+
 def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None, progress=None, frames=None,
                         selfcheck: SelfCheckParams | None = SelfCheckParams()) -> dict:
     """Reconstruct (and score, when the session has ground truth) every frame.
@@ -246,16 +287,7 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
         reconstruct = m.prepare(session.rig, backgrounds, params)
     except ValueError as exc:  # FrameError included
         raise SessionError(_background_error(session, exc)) from None
-    check_model = radii_mm = None
-    if selfcheck is not None:
-        radii_mm = selfcheck_tube_radii_mm(session, params)
-        if radii_mm is None:
-            raise SessionError(f"{session.dir / 'session.json'}: no robot tubes and method {method!r} has no tube radii: "
-                               "the self-check cannot draw the tube (reconstruct_session(selfcheck=None) skips it)")
-        try:
-            check_model = prepare_selfcheck(session.rig, backgrounds, selfcheck)
-        except ValueError as exc:
-            raise SessionError(_background_error(session, exc)) from None
+    check_model, radii_mm = _prepare_check(session, method, params, backgrounds, selfcheck)
     mm_px = mm_per_pixel(session)
     wanted = set(frames) if frames is not None else None
     todo = [f for f in session.frames if wanted is None or f.index in wanted]
@@ -289,25 +321,8 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
                 selfcheck_record(rec, check_model, images, pts, radii_mm, selfcheck)
             backbones[fr.index] = pts
             np.savetxt(out / "frames" / f"{fr.index:06d}.csv", pts, delimiter=",", fmt="%.4f", header="x_mm,y_mm,z_mm", comments="")
-            rec.update(
-                n_points=int(len(pts)),
-                length_mm=_finite(result.length_mm),
-                tip_world_mm=[float(v) for v in result.tip_world_mm],
-                transition_s_mm=_finite(result.transition_s_mm),
-                timings_ms={k: round(float(v), 3) for k, v in result.timings_ms.items()},
-            )
-            voxel = getattr(result, "voxel_size_mm", None)
-            if voxel is not None:
-                rec["voxel_size_mm"] = [float(v) for v in np.broadcast_to(np.asarray(voxel, float), (3,))]
-            try:
-                truth = session.truth(fr.index)
-                if truth is not None:
-                    if "backbone_world_mm" not in truth:
-                        raise SessionError(f"{session.dir / 'truth' / f'{fr.index:06d}.npz'}: no backbone_world_mm array")
-                    errs = backbone_errors(pts, truth["backbone_world_mm"], session.rig)
-                    rec.update({k: _finite(v) for k, v in errs.items()})
-            except Exception as exc:  # noqa: BLE001 - a bad truth file costs the score, not the frame
-                rec["note"] = f"not scored: {_one_line(exc)}"
+            _describe(rec, result, pts)
+            _score(rec, session, fr.index, pts)
         records.append(rec)
         summary = summarize(records, method, params, session.dir, mm_px, selfcheck)
         write_json_atomic(out / "summary.json", summary)
