@@ -702,6 +702,11 @@ class ArduinoActuator(Actuator):
         deadline = time.monotonic() + timeout_s
         while True:
             st = self.status()
+            if st.watchdog_tripped or not st.enabled:
+                # A controller that reset while this STAT was on the wire answers from its new
+                # boot (motors off, no heartbeat yet): the reset, seen by the reader before the
+                # reply, is the cause to report.
+                self._check_reset()
             if st.watchdog_tripped:
                 raise ActuatorError(f"{self.port}: wait_settled: motors stopped by the controller's "
                                     f"link watchdog (no heartbeat for 100 ms)")
