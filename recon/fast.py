@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .background import EigenBackground, EigenBackgroundParams, fit_eigenbackground
+from .background import EigenBackground, EigenBackgroundParams, fit_eigenbackground, to_gray
 from .carving import rig_center
 from .epipolar import EpipolarFrame, align_dp, conditioning, monotonic, triangulate_rays
 from .errors import FrameError
@@ -299,9 +299,7 @@ def prepare_fast(rig: RigCalibration, background_frames: dict, params: FastParam
         cam = rig[name]
         if name not in background_frames:
             raise ValueError(f"{name}: no background frames")
-        frames = np.asarray(background_frames[name])
-        if frames.ndim == 4:
-            frames = np.stack([cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames])
+        frames = to_gray(background_frames[name])
         try:
             eig = fit_eigenbackground(frames, params.background)
         except ValueError as exc:

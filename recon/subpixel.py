@@ -46,6 +46,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import median_filter
 
+from .background import to_gray
 from .errors import FrameError
 
 try:  # compiled per-pixel loops (optional; the NumPy code below gives the same results)
@@ -320,9 +321,7 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
         width_at="at the robot base" if np.array_equal(seen_at, np.asarray(base_world_mm, float)) else "where the robot enters the image",
     )
     # Pixel noise from differences of consecutive background frames (robust; offsets removed).
-    frames = np.asarray(background_frames)
-    if frames.ndim == 4:
-        frames = np.stack([cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames])
+    frames = to_gray(background_frames)
     sub = np.arange(0, H * W, 61)
     flat = frames.reshape(len(frames), -1)
     # Differences of horizontal neighbours of the frame-to-frame difference cancel its smooth part
