@@ -52,7 +52,7 @@ def _edges_1d(d, threshold, out):
             if i1 < 0:
                 i1 = j
             i2 = j
-    if i1 < 2 or i2 > L - 3 or i2 - i1 < 2:
+    if i1 < 2 or i2 > L - 3 or i2 - i1 < 1:
         return False
     s1 = 1.0 if d[i1] > 0 else -1.0
     s2 = 1.0 if d[i2] > 0 else -1.0

@@ -106,6 +106,11 @@ class FastParams:
         edges (the tube in front of backdrop as bright as itself) up to this
         many outer-tube diameters, if the tube is found again beyond them
         (:func:`recon.subpixel._follow_tube`).
+    follow_energy : bool
+        While following, a profile without a pair of edges still finds the
+        tube where a window of its width differs from the background by half
+        the edge threshold on average (a shiny tube whose rims match the
+        backdrop, or one changing polarity along the way).
     outlier_sigma, outlier_min_px : float
         A centre farther than ``max(outlier_sigma * MAD, outlier_min_px)``
         from the spline is rejected.
@@ -150,9 +155,10 @@ class FastParams:
     edge_min_dn: float = 8.0
     profile_half_lines: int = 2
     single_line_rim_factor: float = 3.0
-    min_width_fraction: float = 0.4
+    min_width_fraction: float = 0.2
     max_width_fraction: float = 1.3
     follow_gap_diameters: float = 3.0
+    follow_energy: bool = True
     outlier_sigma: float = 4.0
     outlier_min_px: float = 0.5
     spline_knot_px: float = 40.0

@@ -717,7 +717,7 @@ def profile_edges(d: np.ndarray, threshold: float, rims: bool = False):
     has = a.any(axis=1)
     i1 = np.argmax(a, axis=1)
     i2 = L - 1 - np.argmax(a[:, ::-1], axis=1)
-    ok = has & (i1 >= 2) & (i2 <= L - 3) & (i2 - i1 >= 2)
+    ok = has & (i1 >= 2) & (i2 <= L - 3) & (i2 - i1 >= 1)
     i1 = np.where(ok, i1, 2)
     i2 = np.where(ok, i2, L - 3)
     rows = np.arange(n)[:, None]
@@ -1135,8 +1135,62 @@ def _end_of(fitter, coef, s, good, d, width):
             0.5 * float(np.median(width[good[-min(6, good.size):]])))
 
 
+_CELL_PX = 4.0
+
+
+def _cells(points_px) -> set:
+    """The 4 px cells of ``points_px`` (m, 2) and their 8 neighbours."""
+    c = np.floor(np.asarray(points_px, float) / _CELL_PX).astype(np.int64)
+    return {(int(x) + dx, int(y) + dy) for x, y in c.tolist() for dx in (-1, 0, 1) for dy in (-1, 0, 1)}
+
+
+def _on_cells(points_px, cells: set) -> np.ndarray:
+    """(n,) bool: which of ``points_px`` (n, 2) fall in ``cells`` (:func:`_cells`)."""
+    c = np.floor(np.asarray(points_px, float) / _CELL_PX).astype(np.int64)
+    return np.array([(int(x), int(y)) in cells for x, y in c.tolist()], bool)
+
+
+def _energy_hits(model, frame, coeff, seeds, t, half, nav, threshold, width_px, max_off):
+    """Tube centres on profiles without an edge pair, from where their absolute difference is largest.
+
+    A shiny tube in front of backdrop as bright as its rims, or changing
+    polarity along the way, keeps a core that differs from the background
+    although no pair of edges stands out. Across each profile (``seeds``,
+    across the axis ``t``), the mean absolute difference over a window of the
+    tube's width ``width_px`` is taken at every offset within ``max_off`` (px,
+    per seed) of the seed; a profile finds the tube where that mean exceeds
+    half the edge ``threshold`` (gray levels) and twice the profile's
+    median: a ridge, where the residual of a textured backdrop is broad. The
+    centre is the window's centroid of the absolute difference.
+
+    Returns ``(found, centres)``: (n,) bool and (n, 2) px.
+    """
+    d = np.abs(_gather_profiles(model, frame, coeff, seeds, np.broadcast_to(t, seeds.shape), half, nav)[0])
+    n, L = d.shape
+    w = int(np.clip(np.rint(width_px), 2, L - 2))
+    c = np.cumsum(np.pad(d, ((0, 0), (1, 0))), axis=1)
+    mean = (c[:, w:] - c[:, :-w]) / w  # window j .. j + w - 1
+    mid = np.arange(mean.shape[1]) + 0.5 * (w - 1) - half  # window centre's offset from the seed (px)
+    mean = np.where(np.abs(mid)[None, :] <= np.asarray(max_off)[:, None], mean, -np.inf)
+    j = np.argmax(mean, axis=1)
+    # A tube is a ridge: its window stands out from the rest of the profile (the residual of a textured
+    # backdrop is broad), by half the edge threshold and by twice the profile's typical level.
+    level = np.median(d, axis=1)
+    peak = mean[np.arange(n), j]
+    found = (peak - level > 0.5 * threshold) & (peak > 2.0 * level)
+    cols = j[:, None] + np.arange(-1, w + 1)
+    cols = np.clip(cols, 0, L - 1)
+    wt = d[np.arange(n)[:, None], cols]
+    off = (wt * cols).sum(axis=1) / np.maximum(wt.sum(axis=1), 1e-9) - half
+    # Profiles run along a pixel axis (see _gather_profiles): along v for a tube running along u.
+    centres = np.rint(seeds).astype(np.float64)
+    centres[:, 1 if abs(t[0]) >= abs(t[1]) else 0] += off
+    return found, centres
+
+
 def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step, tolerance, batch: int = 4,
-                 max_gap_px: float = 0.0, confirm: int = 4, nav: int = 0, threshold1=None, strong: float = np.inf):
+                 max_gap_px: float = 0.0, confirm: int = 4, nav: int = 0, threshold1=None, strong: float = np.inf,
+                 energy: bool = False, visited=None):
     """Profiles beyond ``p`` (px) along the tube, at full resolution, for as long as they find it.
 
     Starting from a centre ``p`` with tangent ``t`` and curve parameter ``s``,
@@ -1154,7 +1208,10 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
     once ``confirm`` consecutive profiles find a tube of the width found
     before it (0.5-1.35 times: the step to the thinner tube may lie in the
     gap). Following stops at the first longer run of misses (at least two
-    profiles).
+    profiles). With ``energy``, a profile without an edge pair still finds
+    the tube where its core stands out (:func:`_energy_hits`, at the width
+    found so far), ahead of the last centre and away from the ``visited``
+    centres (m, 2) px.
 
     Returns
     -------
@@ -1169,6 +1226,7 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
     """
     H, W = model.shape
     p, t = np.asarray(p, np.float64), _unit(np.asarray(t, np.float64))
+    seen = _cells(np.zeros((0, 2)) if visited is None else visited)
     recent = p[None]
     last_hit = p.copy()
     widths = []
@@ -1193,7 +1251,18 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
         width = pr.chord * max(abs(t[0]), abs(t[1]))  # the slant, as in extract_view (profiles run across the larger component)
         off = (pr.centers - seeds) @ np.array([-t[1], t[0]])
         ahead = (seeds - last_hit) @ t
-        hit = pr.ok & (width > wmin) & (width < wmax) & (np.abs(off) < tolerance + 0.25 * np.maximum(ahead, 0.0))
+        max_off = tolerance + 0.25 * np.maximum(ahead, 0.0)
+        hit = pr.ok & (width > wmin) & (width < wmax) & (np.abs(off) < max_off)
+        if energy and widths and not hit.all():
+            miss = np.flatnonzero(~hit)
+            wref = float(np.median(widths[-6:]))
+            e_hit, e_c = _energy_hits(model, frame, coeff, seeds[miss], t, half, nav, threshold, wref, max_off[miss])
+            # Only forward, and never back onto the tube already found (past the tip the ridge of the
+            # tube's own end can turn the prediction round).
+            e_hit &= ((e_c - last_hit) @ t > 0.0) & ~_on_cells(e_c, seen)
+            miss, e_c = miss[e_hit], e_c[e_hit]
+            pr.centers[miss], width[miss], hit[miss] = e_c, wref, True
+            pr.chord[miss] = wref / max(abs(t[0]), abs(t[1]))
         s_c = s + k + (pr.centers - seeds) @ t
         stop = confirmed = False
         border = ((seeds[:, 0] < half) | (seeds[:, 1] < half) | (seeds[:, 0] > W - 1 - half) | (seeds[:, 1] > H - 1 - half)).tolist()
@@ -1255,6 +1324,20 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
                     ok=np.ones(len(found), bool))
 
 
+#: Rounds of following the tube and locating its tip in :func:`extract_view` (each round goes on from a
+#: tip found well beyond the profiles).
+_MAX_FOLLOWS = 3
+
+
+def _merge_profiles(prof, s, c, ok, more):
+    """The profiles ``prof`` (s, c, ok) with those of ``more`` added, sorted by curve parameter."""
+    order = np.argsort(np.concatenate([s, more.s]), kind="stable")
+    prof.chord = np.concatenate([prof.chord, more.chord])[order]
+    prof.axis = np.concatenate([prof.axis, more.axis])[order]
+    return (np.concatenate([s, more.s])[order], np.concatenate([c, more.centers])[order],
+            np.concatenate([ok, more.ok])[order])
+
+
 def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings: dict | None = None) -> ViewCenterline:
     """Coarse path, fine profiles, spline, tip: the sub-pixel centerline of one view.
 
@@ -1305,28 +1388,35 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
         raise FrameError(f"too few valid tube profiles ({good.size} of {len(ok)})", model.name)
     lap("fit")
     # The coarse path can stop short of the tip (a tube only a coarse pixel or two wide can drop out of the
-    # coarse mask): follow the tube's edges at full resolution beyond the last accepted centre. What that
-    # finds within a diameter and 2 px is the end cap, which the tip stage measures and the end-cap rule
-    # below drops anyway; only a longer stretch is added, and the centres refitted.
+    # coarse mask): follow the tube's edges at full resolution beyond the last accepted centre.
+    half_f = int(np.ceil(rmax * 1.45 + 4))
+    follow = dict(half=half_f, threshold=thr, wmin=wmin, wmax=wmax, step=params.profile_step_px, tolerance=model.inner_radius_px,
+                  max_gap_px=2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0), nav=nav,
+                  threshold1=thr_px, strong=strong, energy=bool(getattr(params, "follow_energy", False)), visited=c[good])
     sb, p_end, t_end, r_end = _end_of(fitter, coef, s, good, d, width)
-    more = _follow_tube(model, frame, coeff, p_end, t_end, sb, int(np.ceil(rmax * 1.45 + 4)), thr, wmin, wmax,
-                        params.profile_step_px, model.inner_radius_px,
-                        max_gap_px=2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0), nav=nav,
-                        threshold1=thr_px, strong=strong)
-    if more is not None and more.s[-1] > sb + 2.0 * r_end + 2.0:
-        order = np.argsort(np.concatenate([s, more.s]), kind="stable")
-        s = np.concatenate([s, more.s])[order]
-        c = np.concatenate([c, more.centers])[order]
-        ok = np.concatenate([ok, more.ok])[order]
-        prof.chord = np.concatenate([prof.chord, more.chord])[order]
-        prof.axis = np.concatenate([prof.axis, more.axis])[order]
-        fitter, coef, ok, d, width = _fit_centres(s, c, ok, prof, params, wmin, wmax)
-        good = np.flatnonzero(ok)
-        sb, p_end, t_end, r_end = _end_of(fitter, coef, s, good, d, width)
-    lap("follow")
-    # Tip, along the axis from the last accepted centre.
-    end_t = _tip_along_axis(model, frame, coeff, p_end, t_end, r_end, thr_px)
-    lap("tip")
+    start = (p_end, t_end, sb)
+    for round_ in range(_MAX_FOLLOWS):
+        more = _follow_tube(model, frame, coeff, *start, **follow)
+        # What that finds within a diameter and 2 px is the end cap, which the tip stage measures and the
+        # end-cap rule below drops anyway; only a longer stretch is added, and the centres refitted.
+        added = more is not None and more.s[-1] > sb + 2.0 * r_end + 2.0
+        if round_ > 0 and not added:
+            break
+        if added:
+            s, c, ok = _merge_profiles(prof, s, c, ok, more)
+            fitter, coef, ok, d, width = _fit_centres(s, c, ok, prof, params, wmin, wmax)
+            good = np.flatnonzero(ok)
+            sb, p_end, t_end, r_end = _end_of(fitter, coef, s, good, d, width)
+        lap("follow")
+        # Tip, along the axis from the last accepted centre.
+        end_t = _tip_along_axis(model, frame, coeff, p_end, t_end, r_end, thr_px)
+        lap("tip")
+        # Where the tip stage walks on well beyond the profiles (lines along the axis see a tube whose edges
+        # faded across a stretch of backdrop, or the step to a thinner tube whose core alone stands out),
+        # the tube may go on: follow it again from there.
+        if not (np.isfinite(end_t) and end_t > 2.0 * r_end + 3.0):
+            break
+        start = (p_end + end_t * t_end, t_end, sb + end_t)
     if not np.isfinite(end_t):
         end_t = 0.0
     end_px = p_end + end_t * t_end
