@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["profile_edges_nb", "profiles_at_seeds_nb", "coarse_foreground_nb", "bfs_path_nb", "rays_nb"]
+__all__ = ["profile_edges_nb", "profiles_at_seeds_nb", "profile_values_nb", "coarse_foreground_nb", "bfs_path_nb", "rays_nb"]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -640,3 +640,37 @@ def profiles_at_seeds_nb(frame, stack, coeff, seeds, tangents, half, threshold, 
             centers[i, 1] = cv[i] + mid
         chord[i] = e2[i] - e1[i]
     return centers, chord, axis, ok
+
+
+@njit(cache=True, nogil=True)
+def profile_values_nb(frame, stack, coeff, seeds, tangents, half, nav_max):
+    """Background differences on the profiles at ``seeds`` (n, 2 half + 1), each the mean of its lines.
+
+    The windows and lines of :func:`profiles_at_seeds_nb` (seeds rounded and
+    kept inside the image); :func:`recon.subpixel._gather_profiles` compiled.
+    """
+    H, W = frame.shape
+    n = seeds.shape[0]
+    L = 2 * half + 1
+    out = np.zeros((n, L))
+    for i in range(n):
+        tx = abs(tangents[i, 0])
+        ty = abs(tangents[i, 1])
+        ax = ty > tx
+        nav = min(nav_max, int(np.floor(max(tx, ty) / max(min(tx, ty), 1e-6) + 1e-9)))
+        u = int(np.rint(seeds[i, 0]))
+        v = int(np.rint(seeds[i, 1]))
+        if ax:
+            u = min(max(u, half), W - 1 - half)
+            v = min(max(v, 0), H - 1)
+        else:
+            u = min(max(u, 0), W - 1)
+            v = min(max(v, half), H - 1 - half)
+        cnt = 0
+        for o in range(-nav, nav + 1):
+            if _add_line(out[i], frame, stack, coeff, u, v, ax, half, o, H, W):
+                cnt += 1
+        if cnt > 0:
+            for j in range(L):
+                out[i, j] /= cnt
+    return out

@@ -132,8 +132,10 @@ class FastParams:
         edges (camera jitter) and undo it before triangulating.
     max_tip_mismatch_px : float
         The tip is one point, in one epipolar plane: when the two views'
-        silhouette ends lie in planes farther apart than this (px along the
-        tube, in the view where that distance is smaller) the frame is
+        silhouette ends lie in planes farther apart than this plus the inner
+        tube's diameter (each view's silhouette ends at the rim of the end
+        face it sees; px along the tube, in the view where that distance is
+        smaller) the frame is
         refused (:func:`_tip_mismatch`): one view lost the tube short of its
         tip (or ran on into something else) and the backbone would stop there.
     jump : JumpLimits
@@ -580,7 +582,9 @@ class FastReconstructor:
         detail["rays"] = 1e3 * (lap - t)
         tol = 2.0 / float(rig[a].K[0, 0])  # ~2 px of epipolar angle
         short = _tip_mismatch(model, views, sa_, sb_)
-        if min(abs(v) for v in short.values()) > params.max_tip_mismatch_px:
+        # Each view's silhouette ends at the rim of the end face that view sees: up to a tube diameter apart.
+        cap_px = 2.0 * max(model.views[n].inner_radius_px for n in (a, b))
+        if min(abs(v) for v in short.values()) > params.max_tip_mismatch_px + cap_px:
             n_short = [n for n in (a, b) if short[n] > 0]
             if len(n_short) == 1:
                 n = n_short[0]

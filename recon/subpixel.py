@@ -56,6 +56,7 @@ try:  # compiled per-pixel loops (optional; the NumPy code below gives the same 
         frame_coefficients_nb,
         frame_shift_nb,
         profile_edges_nb,
+        profile_values_nb,
         profiles_at_seeds_nb,
         spline_eval_nb,
         spline_robust_nb,
@@ -1135,19 +1136,12 @@ def _end_of(fitter, coef, s, good, d, width):
             0.5 * float(np.median(width[good[-min(6, good.size):]])))
 
 
-_CELL_PX = 4.0
-
-
-def _cells(points_px) -> set:
-    """The 4 px cells of ``points_px`` (m, 2) and their 8 neighbours."""
-    c = np.floor(np.asarray(points_px, float) / _CELL_PX).astype(np.int64)
-    return {(int(x) + dx, int(y) + dy) for x, y in c.tolist() for dx in (-1, 0, 1) for dy in (-1, 0, 1)}
-
-
-def _on_cells(points_px, cells: set) -> np.ndarray:
-    """(n,) bool: which of ``points_px`` (n, 2) fall in ``cells`` (:func:`_cells`)."""
-    c = np.floor(np.asarray(points_px, float) / _CELL_PX).astype(np.int64)
-    return np.array([(int(x), int(y)) in cells for x, y in c.tolist()], bool)
+def _near(points_px, visited_px, radius_px: float) -> np.ndarray:
+    """(n,) bool: which of ``points_px`` (n, 2) lie within ``radius_px`` of one of ``visited_px`` (m, 2)."""
+    if len(visited_px) == 0 or len(points_px) == 0:
+        return np.zeros(len(points_px), bool)
+    d2 = ((np.asarray(points_px)[:, None, :] - np.asarray(visited_px)[None, :, :]) ** 2).sum(axis=2)
+    return d2.min(axis=1) < radius_px ** 2
 
 
 def _energy_hits(model, frame, coeff, seeds, t, half, nav, threshold, width_px, max_off):
@@ -1165,7 +1159,12 @@ def _energy_hits(model, frame, coeff, seeds, t, half, nav, threshold, width_px, 
 
     Returns ``(found, centres)``: (n,) bool and (n, 2) px.
     """
-    d = np.abs(_gather_profiles(model, frame, coeff, seeds, np.broadcast_to(t, seeds.shape), half, nav)[0])
+    tangents = np.ascontiguousarray(np.broadcast_to(t, seeds.shape), np.float64)
+    if USE_NUMBA:
+        d = np.abs(profile_values_nb(frame, model.stack, coeff, np.ascontiguousarray(seeds, np.float64), tangents, int(half), int(nav)))
+    else:
+        major, minor = max(abs(t[0]), abs(t[1])), max(min(abs(t[0]), abs(t[1])), 1e-6)
+        d = np.abs(_gather_profiles(model, frame, coeff, seeds, tangents, half, min(int(nav), int(np.floor(major / minor + 1e-9))))[0])
     n, L = d.shape
     w = int(np.clip(np.rint(width_px), 2, L - 2))
     c = np.cumsum(np.pad(d, ((0, 0), (1, 0))), axis=1)
@@ -1226,7 +1225,7 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
     """
     H, W = model.shape
     p, t = np.asarray(p, np.float64), _unit(np.asarray(t, np.float64))
-    seen = _cells(np.zeros((0, 2)) if visited is None else visited)
+    seen = np.zeros((0, 2)) if visited is None else np.asarray(visited, np.float64)[::2]
     recent = p[None]
     last_hit = p.copy()
     widths = []
@@ -1259,7 +1258,7 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
             e_hit, e_c = _energy_hits(model, frame, coeff, seeds[miss], t, half, nav, threshold, wref, max_off[miss])
             # Only forward, and never back onto the tube already found (past the tip the ridge of the
             # tube's own end can turn the prediction round).
-            e_hit &= ((e_c - last_hit) @ t > 0.0) & ~_on_cells(e_c, seen)
+            e_hit &= ((e_c - last_hit) @ t > 0.0) & ~_near(e_c, seen, max(4.0, wref))
             miss, e_c = miss[e_hit], e_c[e_hit]
             pr.centers[miss], width[miss], hit[miss] = e_c, wref, True
             pr.chord[miss] = wref / max(abs(t[0]), abs(t[1]))
