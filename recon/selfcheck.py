@@ -92,6 +92,10 @@ class SelfCheckParams:
     max_centerline_rms_px : float
         Limit of (c) (px). Good reconstructions reproject within about 1 px
         RMS; a backbone offset by 5 px in one view is far beyond 2.5.
+    max_centerline_local_px, centerline_window_px : float
+        Limit of (c'): the largest running median of the offsets over
+        ``centerline_window_px`` of the curve (px): a stretch where the
+        backbone leaves the tube, which the RMS of a long robot hides.
     min_visible_px : float
         A view in which less than this length of the backbone (px) is in the
         image, in front of the base, is not judged.
@@ -163,11 +167,13 @@ class SelfCheckParams:
     explain_tolerance_px: float = 3.0
     on_foreground_tolerance_px: float = 1.5
     sample_step_px: float = 1.0
-    profile_search_px: float = 6.0
+    profile_search_px: float = 10.0
     max_unexplained_fraction: float = 0.10
     max_unexplained_px: float = 8.0
     max_off_foreground_fraction: float = 0.20
     max_centerline_rms_px: float = 2.5
+    max_centerline_local_px: float = 7.0
+    centerline_window_px: float = 15.0
     max_beyond_tip_contrast: float = 1.3
     max_tip_off_foreground_px: float = 8.0
     max_behind_base_px: float = 10.0
@@ -241,7 +247,7 @@ class SelfCheck:
     figures : dict
         Camera name -> ``{"unexplained_fraction", "unexplained_px",
         "off_foreground_fraction", "tip_off_foreground_px", "centerline_rms_px",
-        "beyond_tip_contrast", "behind_base_px", "visible_px", "unseen_px"}``
+        "centerline_max_px", "beyond_tip_contrast", "behind_base_px", "visible_px", "unseen_px"}``
         (None where not measured: view not judged, no clean cross-section for
         the RMS, ...). ``behind_base_px`` is the backbone's, the same in every view.
     ms : float
@@ -828,7 +834,7 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     backbone's first point guides the depth of that test for the stretch a
     method leaves out because only this view sees it.
     """
-    none = {"unexplained_fraction": None, "unexplained_px": None, "off_foreground_fraction": None, "centerline_rms_px": None,
+    none = {"unexplained_fraction": None, "unexplained_px": None, "off_foreground_fraction": None, "centerline_rms_px": None, "centerline_max_px": None,
             "visible_px": 0.0, "unseen_px": None, "beyond_tip_contrast": None, "tip_off_foreground_px": None,
             "behind_base_px": None}
 
@@ -901,8 +907,12 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     good = np.isfinite(offs)
     enough = good.sum() >= max(10.0, params.min_profile_fraction * offs.size)
     rms = float(np.sqrt(np.mean(offs[good] ** 2))) if enough else None
+    # (c') the largest offset over a stretch: a bump where the method's centerline left the tube for
+    # a few tube widths hardly moves the RMS of a long robot.
+    win = max(1, int(round(params.centerline_window_px / (3 * params.sample_step_px))))
+    local = float(np.max(np.abs(_running_median(offs[good], win)))) if enough and good.sum() >= win else None
     return {"unexplained_fraction": unexplained, "unexplained_px": unexplained_px, "off_foreground_fraction": off,
-            "centerline_rms_px": rms, "visible_px": none["visible_px"], "unseen_px": unseen_px, "beyond_tip_contrast": beyond,
+            "centerline_rms_px": rms, "centerline_max_px": local, "visible_px": none["visible_px"], "unseen_px": unseen_px, "beyond_tip_contrast": beyond,
             "tip_off_foreground_px": tip_off, "behind_base_px": None}
 
 
@@ -948,6 +958,8 @@ def _verdict(figures: dict, params: SelfCheckParams) -> str | None:
              lambda x, lim: f"{cam}: the tube goes on beyond the reprojected tip (contrast {x:.1f}, limit {lim:.1f})"),
             ("centerline_rms_px", params.max_centerline_rms_px,
              lambda x, lim: f"{cam}: the reprojected centerline is {x:.1f} px RMS off the tube's middle (limit {lim:.1f} px)"),
+            ("centerline_max_px", params.max_centerline_local_px,
+             lambda x, lim: f"{cam}: the reprojected centerline leaves the tube's middle by {x:.1f} px over a stretch (limit {lim:.1f} px)"),
         )
         for key, lim, text in checks:
             x = f.get(key)

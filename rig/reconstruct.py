@@ -39,10 +39,25 @@ STATUSES = ("ok", "suspect", "failed")
 
 
 def write_json_atomic(path: Path, data: dict) -> None:
-    """Write JSON to a temporary name and rename it: readers never see half a file."""
+    """Write JSON to a temporary name and rename it: readers never see half a file.
+
+    JSON has no NaN or infinity: such values (an unknown figure, a limit
+    that is off) are written as null rather than aborting the write.
+    """
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=2, allow_nan=False, default=_json_default) + "\n")
+    tmp.write_text(json.dumps(_json_safe(data), indent=2, allow_nan=False, default=_json_default) + "\n")
     os.replace(tmp, path)
+
+
+def _json_safe(o):
+    """``o`` with every non-finite float (NumPy's too) replaced by None, containers copied."""
+    if isinstance(o, dict):
+        return {k: _json_safe(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_json_safe(v) for v in o]
+    if isinstance(o, (float, np.floating)):
+        return float(o) if np.isfinite(o) else None
+    return o
 
 
 def _json_default(o):
@@ -319,6 +334,9 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
             rec["jump_reason"] = getattr(result, "jump_reason", None) if rec["jump_flag"] else None
             if check_model is not None:
                 selfcheck_record(rec, check_model, images, pts, radii_mm, selfcheck)
+            own = getattr(result, "suspect_reason", None)
+            if own and rec["status"] == "ok":  # the method's own doubt (recorded when the check passed)
+                rec.update(status="suspect", reason=str(own))
             backbones[fr.index] = pts
             np.savetxt(out / "frames" / f"{fr.index:06d}.csv", pts, delimiter=",", fmt="%.4f", header="x_mm,y_mm,z_mm", comments="")
             _describe(rec, result, pts)

@@ -171,6 +171,23 @@ def test_bad_input_is_a_one_line_error(model, rendered):
 
 
 # ----------------------------------------------------------------------------- end to end
+def test_a_local_bump_in_one_view_is_flagged_though_the_rms_passes(model, rendered):
+    side = rendered.rig["side"]
+    down_world = side.T_world_cam[:3, 1]
+    mid = len(rendered.truth) // 2
+    mm_px = side.mm_per_pixel_at(rendered.truth[mid])
+    # A 9 px bump over ~30 px of the side view (a smooth hump), the rest of the backbone exact.
+    s_px = (rendered.s_mm - rendered.s_mm[mid]) / mm_px
+    bump = 9.0 * np.exp(-0.5 * (s_px / 8.0) ** 2)
+    sc = _check(model, rendered, rendered.truth + (bump * mm_px)[:, None] * down_world)
+    f = sc.figures["side"]
+    assert f["centerline_rms_px"] < SelfCheckParams().max_centerline_rms_px, f
+    assert f["centerline_max_px"] > SelfCheckParams().max_centerline_local_px, f
+    assert not sc.ok and "over a stretch" in sc.reason, sc.reason
+    exact = _check(model, rendered, rendered.truth)
+    assert max(v["centerline_max_px"] for v in exact.figures.values()) < 2.0, exact.figures
+
+
 @dataclass(frozen=True)
 class _WrongParams:
     outer_tube_radius_mm: float = 0.8
@@ -217,6 +234,20 @@ def test_reconstruct_session_marks_a_wrong_frame_suspect(rendered, tmp_path, mon
 
     page = build_report(tmp_path / "out", meshes=False, overlays=False).read_text()
     assert "<tr class='suspect'>" in page and "1 are suspect" in page
+
+    # A method's own doubt makes a frame suspect when the check passes, with the method's reason.
+    answers[:] = [rendered.truth, rendered.truth]
+    doubt = "the tube folds across an epipolar plane"
+    base_prepare = prepare
+
+    def doubting(rig, background_frames, params):
+        inner = base_prepare(rig, background_frames, params)
+        return lambda frames: SimpleNamespace(**{**vars(inner(frames)), "suspect_reason": doubt})
+
+    monkeypatch.setitem(METHODS, "doubting", Method("doubting", _WrongParams, doubting, "test: doubts every frame"))
+    own = reconstruct_session(session, tmp_path / "own", method="doubting")
+    assert [(r["status"], r["reason"], r["selfcheck"]["ok"]) for r in own["per_frame"]] == [("suspect", doubt, True)] * 2
+    answers[:] = [rendered.truth, _wrong_end(rendered.truth)]
 
     # Without the self-check the same wrong frame is reported ok: what the benchmark's "before" measures.
     off = reconstruct_session(session, tmp_path / "off", method="wrong-half", selfcheck=None)
