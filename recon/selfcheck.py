@@ -167,7 +167,7 @@ class SelfCheckParams:
     explain_tolerance_px: float = 3.0
     on_foreground_tolerance_px: float = 1.5
     sample_step_px: float = 1.0
-    profile_search_px: float = 10.0
+    profile_search_px: float = 6.0
     max_unexplained_fraction: float = 0.10
     max_unexplained_px: float = 8.0
     max_off_foreground_fraction: float = 0.20
