@@ -37,7 +37,11 @@ from scipy.spatial import cKDTree
 from .centerline import INNER, OUTER
 from .errors import FrameError
 
-__all__ = ["BackboneParams", "ReconstructedBackbone", "order_backbone", "resample_polyline", "arc_length"]
+__all__ = ["BackboneParams", "ReconstructedBackbone", "order_backbone", "resample_polyline", "arc_length", "back_to_border",
+           "MAX_BORDER_EXTENSION_PX"]
+
+#: Longest straight continuation (px, in the view where it is longest) of a backbone back to the image border.
+MAX_BORDER_EXTENSION_PX = 48.0
 
 
 @dataclass(frozen=True)
@@ -120,6 +124,39 @@ class ReconstructedBackbone:
     length_mm: float
     n_voxels: int
     n_dropped: int
+
+
+def back_to_border(rig, names, x0_mm, t0, step_mm: float) -> np.ndarray:
+    """Points (k, 3) continuing ``x0_mm`` straight back along ``-t0`` until one camera's image ends (world, mm).
+
+    Where the robot enters across the image border, a method's backbone stops
+    short of it by about its image window; the robot goes on straight there.
+    Every ``step_mm``, while each of ``names`` sees the point in its image; at
+    most :data:`MAX_BORDER_EXTENSION_PX` in the view where the continuation is
+    longest, never behind the base plane (through ``rig.base_point_world_mm``,
+    across ``rig.insertion_axis_world``). Farthest point first, ``x0_mm``
+    excluded; empty when the first step already leaves a view.
+    """
+    x0 = np.asarray(x0_mm, np.float64)
+    t0 = np.asarray(t0, np.float64) / np.linalg.norm(t0)
+    px_per_mm = max(rig[n].K[0, 0] / max(float(rig[n].world_to_camera(x0[None])[0, 2]), 1e-6) for n in names)
+    reach = MAX_BORDER_EXTENSION_PX / px_per_mm
+    axis = np.asarray(rig.insertion_axis_world, np.float64)
+    cos_base = float(t0 @ axis)
+    if cos_base > 1e-6:
+        reach = min(reach, float((x0 - np.asarray(rig.base_point_world_mm, np.float64)) @ axis) / cos_base)
+    d = np.arange(step_mm, reach + 1e-9, step_mm)
+    if d.size == 0:
+        return np.zeros((0, 3))
+    pts = x0 - d[:, None] * t0
+    inside = np.ones(d.size, bool)
+    for n in names:
+        cam = rig[n]
+        uv, z = cam.project(pts)
+        with np.errstate(invalid="ignore"):
+            inside &= (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= cam.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= cam.height - 1)
+    k = d.size if inside.all() else int(np.argmin(inside))
+    return pts[:k][::-1]
 
 
 def arc_length(points: np.ndarray) -> np.ndarray:

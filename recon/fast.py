@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from .background import EigenBackground, EigenBackgroundParams, fit_eigenbackground, to_gray
+from .backbone import back_to_border
 from .carving import rig_center
 from .epipolar import EpipolarFrame, align_dp, conditioning, monotonic, triangulate_rays
 from .errors import FrameError
@@ -510,34 +511,6 @@ _ORDERED_REASON = ("the tube folds across an epipolar plane: matched by order al
                    "is not measured by the two views")
 
 
-#: Longest straight continuation (px, in the view where it is longest) of a backbone back to the image border.
-MAX_BORDER_EXTENSION_PX = 48.0
-
-
-def _back_to_border(rig, names, x0, t0, step_mm: float, h_mm: float, cos_base: float) -> np.ndarray:
-    """Points (k, 3) mm continuing ``x0`` straight back along ``-t0`` until one camera's image ends.
-
-    At most :data:`MAX_BORDER_EXTENSION_PX` in the view where the continuation
-    is longest, never behind the base plane (``h_mm`` in front of it, the
-    tangent at ``cos_base`` to the insertion axis); base first, ``x0`` excluded.
-    """
-    px_per_mm = max(rig[n].K[0, 0] / max(float(rig[n].world_to_camera(x0[None])[0, 2]), 1e-6) for n in names)
-    reach = MAX_BORDER_EXTENSION_PX / px_per_mm
-    if cos_base > 1e-6:
-        reach = min(reach, h_mm / cos_base)
-    d = np.arange(step_mm, reach + 1e-9, step_mm)
-    if d.size == 0:
-        return np.zeros((0, 3))
-    pts = x0 - d[:, None] * t0
-    inside = np.ones(d.size, bool)
-    for n in names:
-        cam = rig[n]
-        uv, z = _project(cam, pts)
-        inside &= (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= cam.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= cam.height - 1)
-    k = int(np.argmin(inside)) if not inside.all() else d.size
-    return pts[:k][::-1]
-
-
 def _transition_s(vc: ViewCenterline, model: ViewModel) -> float:
     """Curve parameter where the measured width steps from outer to inner tube; NaN if no step."""
     w = vc.width_px
@@ -668,8 +641,7 @@ class FastReconstructor:
         elif any(model.views[n].start_px is not None for n in (a, b)):
             # The robot enters across the image border: the profiles stop short of it by about their
             # window; continue straight back to where the first camera loses it.
-            back = _back_to_border(rig, (a, b), dense[0], t0, fine, h, cosb)
-            dense = np.concatenate([back, dense])
+            dense = np.concatenate([back_to_border(rig, (a, b), dense[0], t0, fine), dense])
         # Tip: continue to the silhouette ends seen in both views, less the end cap's extent.
         t1 = spl.derivative()(q[-1])
         t1 /= np.linalg.norm(t1)

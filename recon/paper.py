@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from .backbone import BackboneParams, order_backbone
+from .backbone import BackboneParams, back_to_border, order_backbone
 from .background import EigenBackgroundParams, difference_image, fit_eigenbackground, to_gray
 from .carving import CarvingParams, bounding_box, carve
 from .centerline import CenterlineParams, centerline_params_for, extract_centerline
@@ -389,6 +389,26 @@ def silhouette_bridge_check(cameras, silhouettes, voxel_size_mm):
     return check
 
 
+def _continue_to_border(rig: RigCalibration, names, bb):
+    """The backbone continued straight back to where the first camera loses it (robot entering across the border).
+
+    Carving keeps only what every view sees, and the centerlines end a disk
+    short of the border: on the wide suite such backbones started 2-3 mm
+    (10-16 px footprints) in from where both views still see the robot.
+    """
+    pts = bb.points_mm
+    if len(pts) < 3:
+        return bb
+    step = float(np.median(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    k = min(len(pts) - 1, max(2, int(np.ceil(2.0 / max(step, 1e-6)))))  # the first ~2 mm give the direction
+    back = back_to_border(rig, names, pts[0], pts[k] - pts[0], step)
+    if not len(back):
+        return bb
+    ext = float(np.linalg.norm(back[0] - pts[0]))
+    return replace(bb, points_mm=np.concatenate([back, pts]), length_mm=bb.length_mm + ext,
+                   transition_s_mm=bb.transition_s_mm + ext)
+
+
 def base_borders(camera, base_point_world_mm) -> list:
     """Image borders the robot base lies beyond, as ``camera`` sees it (none if it is in the image).
 
@@ -487,6 +507,8 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
         voxel_size_mm=carved.voxel_size_mm,
         bridge_check=silhouette_bridge_check(cameras, [silhouettes[n] for n in names], carved.voxel_size_mm),
     )
+    if any(base_borders(model.rig[n], model.rig.base_point_world_mm) for n in names):
+        bb = _continue_to_border(model.rig, names, bb)
     lap("backbone")
     total = int(carved.points_mm.shape[0])
     if params.max_dropped_fraction < 1.0 and bb.n_dropped > params.max_dropped_fraction * total:

@@ -144,3 +144,35 @@ def test_long_gap_bridged_only_with_image_support():
     assert np.linalg.norm(bb.tip_mm - curve[-1]) <= 0.8
     # A bridge's straight chord over 6 mm of a 40 mm radius arc: within ~0.15 mm of it.
     assert point_to_polyline_distances(bb.points_mm[1:-1], curve).max() <= 0.5 * 0.8
+
+
+def _inside(cam, p):
+    uv, z = cam.project(np.atleast_2d(p))
+    return bool(z[0] > 0 and 0 <= uv[0, 0] <= cam.width - 1 and 0 <= uv[0, 1] <= cam.height - 1)
+
+
+def test_back_to_border_stops_where_the_first_camera_loses_the_robot(paper_scene):
+    from recon.backbone import MAX_BORDER_EXTENSION_PX, back_to_border
+
+    rig = paper_scene.rig
+    names = rig.names
+    side = rig["side"]
+    t0 = side.T_world_cam[:3, 1]  # image-down in the world: the continuation runs up, out of the top border
+    # A point ~25 px below the side image's top border (and in the top image).
+    x0 = np.array([60.0, 0.0, 0.0])
+    while side.project(x0[None])[0][0, 1] > 25.0:
+        x0 = x0 - 0.5 * t0
+    assert all(_inside(rig[n], x0) for n in names)
+    step = 0.25
+    back = back_to_border(rig, names, x0, t0, step)
+    assert len(back) > 0
+    assert all(_inside(rig[n], p) for n in names for p in back)
+    beyond = back[0] - step * t0 / np.linalg.norm(t0)
+    px_per_mm = max(rig[n].K[0, 0] / rig[n].world_to_camera(x0[None])[0, 2] for n in names)
+    assert not all(_inside(rig[n], beyond) for n in names)  # 25 px: the border, not the cap, ends it
+    assert np.linalg.norm(back[0] - x0) <= MAX_BORDER_EXTENSION_PX / px_per_mm + 1e-9
+    # Ordered farthest first, evenly spaced, on the line, never past the base plane.
+    assert np.allclose(np.linalg.norm(np.diff(back, axis=0), axis=1), step)
+    assert np.allclose(back[-1], x0 - step * t0 / np.linalg.norm(t0))
+    along_axis = back_to_border(rig, names, np.array([2.0, 0.0, 0.0]), np.array(rig.insertion_axis_world, float), 0.25)
+    assert all((p - rig.base_point_world_mm) @ rig.insertion_axis_world >= -1e-9 for p in along_axis)
