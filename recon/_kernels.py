@@ -595,12 +595,10 @@ def project_nb(P, K, dist, T):
 
 
 @njit(cache=True, nogil=True)
-def profiles_at_seeds_nb(frame, stack, coeff, seeds, tangents, half, threshold, nav_max, threshold1, strong):
-    """:func:`recon.subpixel.edges_from_profiles` in one call: windows, lines averaged, edges, centres.
-
-    Returns ``centers (n, 2), chord (n,), axis (n,) int8, ok (n,)``.
-    """
-    H, W = frame.shape
+def _windows(seeds, tangents, half, nav_max, H, W):
+    """Per seed: profile axis (1: along u, for a tube running along v), window centre (cu, cv) kept
+    ``half`` px inside the image along the profile, lines to average (fewer where the tube is slanted
+    to them), and whether the centre stayed the rounded seed."""
     n = seeds.shape[0]
     axis = np.zeros(n, np.int8)
     cu = np.empty(n, np.int64)
@@ -612,9 +610,7 @@ def profiles_at_seeds_nb(frame, stack, coeff, seeds, tangents, half, threshold, 
         ty = abs(tangents[i, 1])
         ax = ty > tx
         axis[i] = 1 if ax else 0
-        major = max(tx, ty)
-        minor = max(min(tx, ty), 1e-6)
-        nav[i] = min(nav_max, int(np.floor(major / minor + 1e-9)))
+        nav[i] = min(nav_max, int(np.floor(max(tx, ty) / max(min(tx, ty), 1e-6) + 1e-9)))
         u0 = int(np.rint(seeds[i, 0]))
         v0 = int(np.rint(seeds[i, 1]))
         if ax:
@@ -626,6 +622,18 @@ def profiles_at_seeds_nb(frame, stack, coeff, seeds, tangents, half, threshold, 
         cu[i] = u
         cv[i] = v
         inside[i] = u == u0 and v == v0
+    return axis, cu, cv, nav, inside
+
+
+@njit(cache=True, nogil=True)
+def profiles_at_seeds_nb(frame, stack, coeff, seeds, tangents, half, threshold, nav_max, threshold1, strong):
+    """:func:`recon.subpixel.edges_from_profiles` in one call: windows, lines averaged, edges, centres.
+
+    Returns ``centers (n, 2), chord (n,), axis (n,) int8, ok (n,)``.
+    """
+    H, W = frame.shape
+    n = seeds.shape[0]
+    axis, cu, cv, nav, inside = _windows(seeds, tangents, half, nav_max, H, W)
     e1, e2, ok, _ = profile_edges_nb(frame, stack, coeff, cu, cv, axis, half, threshold, nav, threshold1, strong)
     centers = np.empty((n, 2))
     chord = np.empty(n)
@@ -653,22 +661,11 @@ def profile_values_nb(frame, stack, coeff, seeds, tangents, half, nav_max):
     n = seeds.shape[0]
     L = 2 * half + 1
     out = np.zeros((n, L))
+    axis, cu, cv, nav, _ = _windows(seeds, tangents, half, nav_max, H, W)
     for i in range(n):
-        tx = abs(tangents[i, 0])
-        ty = abs(tangents[i, 1])
-        ax = ty > tx
-        nav = min(nav_max, int(np.floor(max(tx, ty) / max(min(tx, ty), 1e-6) + 1e-9)))
-        u = int(np.rint(seeds[i, 0]))
-        v = int(np.rint(seeds[i, 1]))
-        if ax:
-            u = min(max(u, half), W - 1 - half)
-            v = min(max(v, 0), H - 1)
-        else:
-            u = min(max(u, 0), W - 1)
-            v = min(max(v, half), H - 1 - half)
         cnt = 0
-        for o in range(-nav, nav + 1):
-            if _add_line(out[i], frame, stack, coeff, u, v, ax, half, o, H, W):
+        for o in range(-nav[i], nav[i] + 1):
+            if _add_line(out[i], frame, stack, coeff, cu[i], cv[i], axis[i] == 1, half, o, H, W):
                 cnt += 1
         if cnt > 0:
             for j in range(L):
