@@ -1187,6 +1187,21 @@ def _energy_hits(model, frame, coeff, seeds, t, half, nav, threshold, width_px, 
     return found, centres
 
 
+def _add_ridge_hits(model, frame, coeff, seeds, t, half, nav, threshold, wref, max_off, last_hit, seen, pr, width, hit):
+    """Turn the misses among ``hit`` into hits where :func:`_energy_hits` finds the tube's core (in place).
+
+    Only ahead of ``last_hit`` along ``t``, and never back onto the ``seen``
+    centres (past the tip the ridge of the tube's own end can turn the
+    prediction round); such a hit gets the width ``wref`` found so far.
+    """
+    miss = np.flatnonzero(~hit)
+    e_hit, e_c = _energy_hits(model, frame, coeff, seeds[miss], t, half, nav, threshold, wref, max_off[miss])
+    e_hit &= ((e_c - last_hit) @ t > 0.0) & ~_near(e_c, seen, max(4.0, wref))
+    miss, e_c = miss[e_hit], e_c[e_hit]
+    pr.centers[miss], width[miss], hit[miss] = e_c, wref, True
+    pr.chord[miss] = wref / max(abs(t[0]), abs(t[1]))
+
+
 def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step, tolerance, batch: int = 4,
                  max_gap_px: float = 0.0, confirm: int = 4, nav: int = 0, threshold1=None, strong: float = np.inf,
                  energy: bool = False, visited=None):
@@ -1253,15 +1268,8 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
         max_off = tolerance + 0.25 * np.maximum(ahead, 0.0)
         hit = pr.ok & (width > wmin) & (width < wmax) & (np.abs(off) < max_off)
         if energy and widths and not hit.all():
-            miss = np.flatnonzero(~hit)
-            wref = float(np.median(widths[-6:]))
-            e_hit, e_c = _energy_hits(model, frame, coeff, seeds[miss], t, half, nav, threshold, wref, max_off[miss])
-            # Only forward, and never back onto the tube already found (past the tip the ridge of the
-            # tube's own end can turn the prediction round).
-            e_hit &= ((e_c - last_hit) @ t > 0.0) & ~_near(e_c, seen, max(4.0, wref))
-            miss, e_c = miss[e_hit], e_c[e_hit]
-            pr.centers[miss], width[miss], hit[miss] = e_c, wref, True
-            pr.chord[miss] = wref / max(abs(t[0]), abs(t[1]))
+            _add_ridge_hits(model, frame, coeff, seeds, t, half, nav, threshold, float(np.median(widths[-6:])), max_off,
+                            last_hit, seen, pr, width, hit)
         s_c = s + k + (pr.centers - seeds) @ t
         stop = confirmed = False
         border = ((seeds[:, 0] < half) | (seeds[:, 1] < half) | (seeds[:, 0] > W - 1 - half) | (seeds[:, 1] > H - 1 - half)).tolist()
