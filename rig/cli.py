@@ -24,12 +24,23 @@ class CLIError(Exception):
     """A user-facing error: printed as ``ctr-bench <cmd>: error: <message>``."""
 
 
+def _version() -> str:
+    """The installed distribution's version (``unknown`` when run from a tree that is not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("ctr-bench")
+    except PackageNotFoundError:
+        return "unknown"
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="ctr-bench",
         description="Real-time 3D reconstruction of concentric tube robots from two orthogonal cameras, "
         "with a digital twin and a hardware layer.",
     )
+    parser.add_argument("--version", action="version", version=f"ctr-bench {_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMANDS:

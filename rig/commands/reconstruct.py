@@ -5,9 +5,22 @@ import json
 from pathlib import Path
 
 
+def method_name(name: str) -> str:
+    """``--method``'s type: a known method's name, checked when the options are read (before any render)."""
+    import argparse
+
+    from recon.methods import get_method
+
+    try:
+        get_method(name)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return name
+
+
 def add_method_options(p) -> None:
     """--method and --params, shared by run, reconstruct and experiment."""
-    p.add_argument("--method", default="paper", help="reconstruction method: paper (default) or fast")
+    p.add_argument("--method", default="paper", type=method_name, help="reconstruction method: paper (default) or fast")
     p.add_argument("--params", default=None, metavar="FILE", help="TOML parameter file (e.g. written by ctr-bench tune)")
 
 
