@@ -25,3 +25,13 @@ def test_version(capsys):
         main(["--version"])
     assert exc.value.code == 0
     assert capsys.readouterr().out.strip() == f"ctr-bench {version('ctr-bench')}"
+
+
+@pytest.mark.parametrize("value, says", [("2", "at least 3"), ("two", "an integer")])
+def test_calibrate_min_views_errors_name_the_option(tmp_path, capsys, value, says):
+    with pytest.raises(SystemExit) as exc:
+        main(["calibrate", str(tmp_path), "--out", str(tmp_path / "rig.json"), "--min-views", value])
+    assert exc.value.code == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--min-views" in last and says in last and "min_views" not in last, last
+    assert not (tmp_path / "rig.json").exists()

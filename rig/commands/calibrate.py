@@ -196,6 +196,19 @@ def _run(args) -> int:
     return _import(args)
 
 
+def _min_views(text: str) -> int:
+    """``--min-views``'s type: an integer of at least 3 (OpenCV's intrinsic calibration needs 3 views of a planar board)."""
+    import argparse
+
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if n < 3:
+        raise argparse.ArgumentTypeError(f"must be at least 3 (a camera's intrinsics need 3 views of the board), got {n}")
+    return n
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "calibrate",
@@ -225,6 +238,6 @@ def register(sub) -> None:
     p.add_argument("--distortion", default="auto",
                    help="estimated distortion terms: auto (k1 k2 p1 p2 k3, insignificant ones held at 0) or e.g. 'k1 k2 p1 p2 k3', 'k1 k2'")
     p.add_argument("--no-joint-refinement", action="store_true", help="stop after the OpenCV stages (as the paper did)")
-    p.add_argument("--min-views", type=int, default=5, help="usable views each camera needs (default 5)")
+    p.add_argument("--min-views", type=_min_views, default=5, help="usable views each camera needs (at least 3; default 5)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_run)
