@@ -1334,6 +1334,11 @@ def _no_board_error(board: BoardSpec, cam: str, items: list, params: Calibration
     return ValueError(msg)
 
 
+def _pair_of(view_name: str) -> str:
+    """The stereo pair's name of a stereo view (``stereo/side/003.png`` -> ``003.png``)."""
+    return view_name.split("/", 2)[2]
+
+
 def calibrate_rig(
     images: CalibrationImages,
     board: BoardSpec,
@@ -1423,11 +1428,13 @@ def calibrate_rig(
         )
     elif params.joint_refinement:
         obs = []
+        used_pairs = {v.name for v in stereo.used}
         for cam in CAMERAS:
             for name, T in per_cam[cam].poses.items():
-                if not name.startswith("stereo/"):
+                # A stereo view whose pair is not used (the board found in this camera only) is one more
+                # view of this camera's intrinsics.
+                if not name.startswith("stereo/") or _pair_of(name) not in used_pairs:
                     obs.append({"frame": name, "ref": cam, "T_ref_board": T, "views": [(cam, found[name].corners)]})
-        used_pairs = {v.name for v in stereo.used}
         for name, ds, dt in pairs:
             if name in used_pairs:
                 T_top_board = per_cam["top"].poses.get(dt.name)
@@ -1447,8 +1454,8 @@ def calibrate_rig(
                 if not v.used:
                     recs.append(v)
                     continue
-                if v.name.startswith("stereo/"):
-                    frame = f"stereo/{v.name.split('/', 2)[2]}"
+                if v.name.startswith("stereo/") and _pair_of(v.name) in used_pairs:
+                    frame = f"stereo/{_pair_of(v.name)}"
                     e = sol["errors"][frame][CAMERAS.index(cam)]
                     T = sol["poses"][frame] if cam == "top" else T_side_top @ sol["poses"][frame]
                 else:

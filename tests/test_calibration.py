@@ -372,3 +372,28 @@ def test_reconstruction_with_calibrated_rig_is_as_good_as_with_true_rig(calibrat
     assert true["failed_frames"] == 0 and cal["failed_frames"] == 0
     for key in ("mean_error_mm", "tip_error_mm_median"):
         assert cal[key] <= 1.2 * true[key], f"{key}: calibrated {cal[key]:.4f} mm vs true rig {true[key]:.4f} mm"
+
+
+@pytest.mark.parametrize("blank", ["top", "side"])
+def test_a_stereo_pair_seen_by_one_camera_is_dropped_with_its_name(folder, capture, tmp_path, capsys, blank):
+    """A pair whose board one camera misses (a blank partner image): that pair is named and dropped, the
+    other camera keeps the view for its intrinsics, and the rig is as good (issue 14: KeyError)."""
+    import shutil
+
+    import cv2
+
+    from rig.cli import main
+
+    cal = tmp_path / "cal"
+    shutil.copytree(folder, cal)
+    pair = sorted((cal / "stereo" / blank).glob("*.png"))[3]
+    img = cv2.imread(str(pair), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(pair), np.full_like(img, 128))
+    out = tmp_path / "rig.json"
+    assert main(["calibrate", str(cal), "--out", str(out), "--quiet"]) == 0
+    captured = capsys.readouterr()
+    assert f"rejected {pair.name}: stereo/{blank}/{pair.name}" in captured.out + captured.err
+    rig = load_rig_calibration(out)
+    for name in ("side", "top"):
+        d_mm, d_deg = pose_difference(rig[name].T_cam_world, capture.truth[name].T_cam_world)
+        assert d_mm < 0.2 and d_deg < 0.05, (name, d_mm, d_deg)
