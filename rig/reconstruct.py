@@ -53,6 +53,8 @@ def _json_safe(o):
     """``o`` with every non-finite float (NumPy's too) replaced by None, containers copied."""
     if isinstance(o, dict):
         return {k: _json_safe(v) for k, v in o.items()}
+    if isinstance(o, np.ndarray):
+        return _json_safe(o.tolist())
     if isinstance(o, (list, tuple)):
         return [_json_safe(v) for v in o]
     if isinstance(o, (float, np.floating)):

@@ -133,3 +133,13 @@ def test_too_few_background_frames_is_a_set_up_error(bad_session, tmp_path):
     msg = str(err.value)
     assert "\n" not in msg
     assert msg == f"{d / 'background' / 'side'}: need at least k+1={k + 1} background frames, got {k - 2}"
+
+
+def test_summary_json_writes_non_finite_figures_as_null(tmp_path):
+    """JSON has no NaN or inf: an unknown figure or a limit that is off is null, never an aborted write."""
+    from rig.reconstruct import write_json_atomic
+
+    path = tmp_path / "summary.json"
+    write_json_atomic(path, {"limit": float("inf"), "fig": np.float64("nan"), "pts": np.array([1.0, -np.inf]), "n": np.int64(3),
+                             "nested": [{"x": float("nan")}, (2.5,)]})
+    assert json.loads(path.read_text()) == {"limit": None, "fig": None, "pts": [1.0, None], "n": 3, "nested": [{"x": None}, [2.5]]}
