@@ -318,6 +318,21 @@ def test_cli_calibrates_a_folder_and_imports(folder, capture, tmp_path, capsys):
     assert main(["calibrate", "--import-ros", str(tmp_path / "side.yaml"), str(tmp_path / "top.yaml"),
                  "--world-from", str(tmp_path / "world.yaml"), "--out", str(ros)]) == 0
     np.testing.assert_allclose(load_rig_calibration(ros)["side"].T_cam_world, rig["side"].T_cam_world, atol=1e-9)
+    # OpenCV stereo file + a world file: its T_side_top may only repeat the stereo file's R, T (it used to replace it).
+    stereo = str(out.parent / "rig_stereo.yaml")
+    from recon.calibration_io import load_opencv_stereo
+
+    T_stereo = load_opencv_stereo(stereo)["T_side_top"]
+    save_world_file(tmp_path / "same.yaml", rig["top"].T_cam_world, T_stereo)
+    assert main(["calibrate", "--import-opencv", stereo, "--world-from", str(tmp_path / "same.yaml"), "--out", str(tmp_path / "s.json")]) == 0
+    moved = T_stereo.copy()
+    moved[:3, 3] += [0.0, 0.0, 182.0]
+    save_world_file(tmp_path / "moved.yaml", rig["top"].T_cam_world, moved)
+    capsys.readouterr()
+    assert main(["calibrate", "--import-opencv", stereo, "--world-from", str(tmp_path / "moved.yaml"), "--out", str(tmp_path / "m.json")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "moved.yaml" in err and "rig_stereo.yaml" in err and "182.000 mm" in err, err
+    assert not (tmp_path / "m.json").exists()
 
 
 def test_cli_errors_are_one_line(tmp_path, capsys):

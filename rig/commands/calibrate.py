@@ -137,6 +137,23 @@ def _world_images(path: Path):
     return None
 
 
+def _one_side_pose(args, world_from: Path, T_stereo, T_world_file):
+    """The side pose from the stereo file or the world file; both, only when they agree (0.01 mm, 0.001 deg).
+
+    An OpenCV stereo file's R, T is T_side_top; a world file giving another one
+    would silently replace the calibrated stereo pose (issue 14: 182 mm).
+    """
+    if T_world_file is None or T_stereo is None:
+        return T_world_file if T_world_file is not None else T_stereo
+    from recon.calibration import pose_difference
+
+    d_mm, d_deg = pose_difference(T_world_file, T_stereo)
+    if d_mm > 0.01 or d_deg > 0.001:
+        raise ValueError(f"{world_from}: T_side_top differs from the R, T of {args.import_opencv} by {d_mm:.3f} mm, {d_deg:.4f} deg "
+                         "(--world-from): give the side camera's pose in one file only")
+    return T_stereo
+
+
 def _import(args) -> int:
     from recon.calibration import calibrate_extrinsics
     from recon.calibration_io import load_opencv_stereo, load_ros_camera_info, load_world_file, rig_from_parts
@@ -161,7 +178,7 @@ def _import(args) -> int:
     if images is None:
         w = load_world_file(world_from)
         T_top_world = w.get("T_top_world")
-        T_side_top = w.get("T_side_top", T_side_top)
+        T_side_top = _one_side_pose(args, world_from, T_side_top, w.get("T_side_top"))
         T_side_world = w.get("T_side_world")
         if T_top_world is None:
             raise ValueError(f"{world_from}: missing T_top_world")
