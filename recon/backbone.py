@@ -153,8 +153,7 @@ def back_to_border(rig, names, x0_mm, t0, step_mm: float) -> np.ndarray:
     for n in names:
         cam = rig[n]
         uv, z = cam.project(pts)
-        with np.errstate(invalid="ignore"):
-            inside &= (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= cam.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= cam.height - 1)
+        inside &= (z > 0) & cam.in_image(np.nan_to_num(uv, nan=-1e9), margin_px=0.5)  # pixel centres 0 .. size - 1
     k = d.size if inside.all() else int(np.argmin(inside))
     return pts[:k][::-1]
 
