@@ -22,19 +22,21 @@ robot base lets the robot cross the image border on that side.
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 
-from .backbone import BackboneParams, back_to_border, order_backbone
+from .backbone import BackboneParams, arc_length, back_to_border, order_backbone, resample_polyline
 from .background import EigenBackgroundParams, difference_image, fit_eigenbackground, to_gray
 from .carving import CarvingParams, bounding_box, carve
 from .centerline import CenterlineParams, centerline_params_for, extract_centerline
 from .errors import FrameError
 from .rigcal import RigCalibration
 from .silhouette import BORDERS, SilhouetteParams, extract_silhouette, hysteresis_threshold
+from .subvoxel import SubvoxelParams, refine_backbone
 
 __all__ = ["PaperParams", "PaperModel", "Reconstruction", "prepare_paper", "reconstruct_paper", "camera_order",
            "check_tube_widths", "behind_base_pixels"]
@@ -96,6 +98,13 @@ class PaperParams:
         robot-free frame read as a robot leaving the view.
         Not applied to masks (background frames in [0, 1]): they have no
         noise, and a blurred mask only widens under the low threshold.
+    max_tip_overrun_px : float
+        The frame is reported suspect (``Reconstruction.suspect_reason``)
+        when a view's centerline goes on beyond the reprojected tip for more
+        than this (px; see :func:`centerline_beyond_tip_px`): the other view
+        lost the tube there (a faint stretch its silhouette missed), and the
+        carving, which keeps only what both views see, stopped short. Not in
+        the paper; 0 disables it.
     max_dropped_fraction : float
         The frame is refused (:class:`~recon.errors.FrameError`) when the
         backbone leaves out more than this fraction of the carved voxels:
@@ -105,6 +114,10 @@ class PaperParams:
         39 % was the distal half alone (not in the paper; 1 disables it).
     carving : CarvingParams
     backbone : BackboneParams
+    subvoxel : SubvoxelParams or None
+        The carved backbone moved onto the views' centerlines and its tip to
+        where they end (:mod:`recon.subvoxel`; not in the paper). None: the
+        backbone as the voxels give it, quantized to the grid.
     """
 
     background: EigenBackgroundParams = field(default_factory=EigenBackgroundParams)
@@ -116,12 +129,14 @@ class PaperParams:
     measure_width: bool = True
     outer_disk_position: float = CenterlineParams.outer_disk_position
     inner_disk_margin_px: float = CenterlineParams.inner_disk_margin_px
-    min_tube_width_px: float = 4.0
+    min_tube_width_px: float = 3.0
     cut_behind_base: bool = True
     difference_blur_px: float = 0.5
+    max_tip_overrun_px: float = 8.0
     max_dropped_fraction: float = 0.1
     carving: CarvingParams = field(default_factory=CarvingParams)
     backbone: BackboneParams = field(default_factory=BackboneParams)
+    subvoxel: SubvoxelParams | None = field(default_factory=SubvoxelParams)
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,6 +218,13 @@ class Reconstruction:
         Camera name -> ``{"outer_radius_px", "inner_radius_px",
         "edge_loss_px"}``: the structuring elements used and the measured
         silhouette edge loss (None when not measured).
+    tip_overrun_px : dict
+        Camera name -> length (px) of its centerline beyond the reprojected
+        tip (:func:`centerline_beyond_tip_px`).
+    suspect_reason : str or None
+        Why the method itself cannot vouch for this shape (the frame is then
+        reported ``suspect``): a view whose centerline goes on beyond the tip
+        (``max_tip_overrun_px``).
     """
 
     points_world_mm: np.ndarray
@@ -217,6 +239,8 @@ class Reconstruction:
     n_voxels: int
     timings_ms: dict
     centerline_disks: dict = field(default_factory=dict)
+    tip_overrun_px: dict = field(default_factory=dict)
+    suspect_reason: object = None
 
 
 def camera_order(names) -> tuple:
@@ -409,6 +433,94 @@ def _continue_to_border(rig: RigCalibration, names, bb):
                    transition_s_mm=bb.transition_s_mm + ext)
 
 
+#: A view's centerline within the outer tube's image radius plus this (px) of the reprojected
+#: backbone is explained by it: voxel rounding (a third of a voxel, about 1 px) plus the
+#: centerline's own wander on a tube a few pixels wide.
+_EXPLAINED_TOL_PX = 3.0
+
+
+def centerline_beyond_tip_px(camera, centerline: np.ndarray, points_world_mm: np.ndarray, outer_radius_px: float) -> float:
+    """How far (px of centerline) a view's centerline goes on beyond the reprojected backbone's tip.
+
+    The carving keeps only what every view sees: where one view's silhouette
+    loses a faint stretch of tube, the backbone stops there, and it
+    reprojects onto the tube in both views. The view that did see the
+    stretch still has it in its centerline, beyond the reprojected tip.
+
+    Parameters
+    ----------
+    camera : recon.camera.Camera
+    centerline : (H, W) array
+        The view's centerline (nonzero on it).
+    points_world_mm : (n, 3) array
+        The backbone, base to tip (world, mm).
+    outer_radius_px : float
+        The outer tube's radius in this image (px).
+
+    Returns
+    -------
+    float
+        Pixels of centerline farther than ``outer_radius_px +
+        _EXPLAINED_TOL_PX`` from the reprojected backbone, in pieces that
+        start at its tip (pieces less than a tube diameter apart count as
+        one); 0 when the tip is outside the image.
+    """
+    uv = camera.project(np.asarray(points_world_mm, float))[0]
+    uv = uv[np.all(np.isfinite(uv), axis=1)]
+    h, w = centerline.shape
+    if len(uv) < 2 or not (0 <= uv[-1, 0] <= w - 1 and 0 <= uv[-1, 1] <= h - 1):
+        return 0.0
+    reach = int(math.ceil(outer_radius_px + _EXPLAINED_TOL_PX))
+    on = (np.asarray(centerline) > 0).astype(np.uint8)
+    x, y, bw, bh = cv2.boundingRect(on)  # only where the centerline is: a 5 MP frame costs as a small one
+    if bw == 0:
+        return 0.0
+    on = on[y:y + bh, x:x + bw]
+    uv = uv - (x, y)
+    explained = np.zeros_like(on)
+    cv2.polylines(explained, [np.round(uv * 16).astype(np.int32)], False, 1, thickness=2 * reach + 1, shift=4)
+    beyond = on & (explained == 0)
+    # A faint tube's centerline comes in pieces: gaps up to a tube diameter join them.
+    gap = 2 * int(math.ceil(outer_radius_px)) + 1
+    n, labels = cv2.connectedComponents(cv2.dilate(beyond, np.ones((gap, gap), np.uint8)), connectivity=8)
+    if n <= 1:
+        return 0.0
+    near_tip = np.zeros_like(on)
+    cv2.circle(near_tip, (int(round(uv[-1, 0])), int(round(uv[-1, 1]))), reach + 3, 1, -1)
+    ids = np.unique(labels[(near_tip > 0) & (labels > 0)])
+    ids = ids[ids > 0]
+    return float((np.isin(labels, ids) & (beyond > 0)).sum()) if len(ids) else 0.0
+
+
+def _tip_overrun(model: PaperModel, names, centerlines: dict, points_world_mm, params: PaperParams) -> tuple:
+    """Per view the centerline beyond the tip (px), and the doubt it raises (str or None)."""
+    overrun = {}
+    for n in names:
+        radii = model.tube_radii_px.get(n)
+        overrun[n] = centerline_beyond_tip_px(model.rig[n], centerlines[n], points_world_mm,
+                                              radii[0] if radii else _EXPLAINED_TOL_PX)
+    worst = max(names, key=lambda n: overrun[n])
+    reason = None
+    if params.max_tip_overrun_px > 0 and overrun[worst] > params.max_tip_overrun_px:
+        reason = (f"{worst}: the centerline goes on {overrun[worst]:.0f} px beyond the reconstructed tip "
+                  f"(limit {params.max_tip_overrun_px:g} px): another view lost the tube there")
+    return overrun, reason
+
+
+def _refined(cameras, centerlines: list, disks: list, bb, voxel_size_mm, params: PaperParams):
+    """The backbone moved onto the views' centerlines (:func:`recon.subvoxel.refine_backbone`), resampled.
+
+    ``disks``: per camera, :func:`recon.centerline.extract_centerline`'s info (the small disk made the tip's centerline).
+    """
+    pts = refine_backbone(cameras, centerlines, bb.points_mm, voxel_size_mm, params.subvoxel,
+                          erosion_radii_px=[d.get("inner_radius_px") for d in disks])
+    pts = resample_polyline(pts, params.backbone.step_mm)
+    s = arc_length(pts)
+    tr = bb.transition_s_mm
+    at = np.array([np.interp(tr, s, pts[:, k]) for k in range(3)]) if np.isfinite(tr) and tr <= s[-1] else bb.transition_mm
+    return replace(bb, points_mm=pts, tip_mm=pts[-1].copy(), length_mm=float(s[-1]), transition_mm=at)
+
+
 def base_borders(camera, base_point_world_mm) -> list:
     """Image borders the robot base lies beyond, as ``camera`` sees it (none if it is in the image).
 
@@ -509,6 +621,8 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
     )
     if any(base_borders(model.rig[n], model.rig.base_point_world_mm) for n in names):
         bb = _continue_to_border(model.rig, names, bb)
+    if params.subvoxel is not None:
+        bb = _refined(cameras, [centerlines[n] for n in names], [disks[n] for n in names], bb, carved.voxel_size_mm, params)
     lap("backbone")
     total = int(carved.points_mm.shape[0])
     if params.max_dropped_fraction < 1.0 and bb.n_dropped > params.max_dropped_fraction * total:
@@ -517,6 +631,8 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
         # half alone, 27 mm off).
         raise FrameError(f"the carved robot is in pieces the backbone cannot join: {bb.n_dropped} of {total} voxels "
                          f"({100.0 * bb.n_dropped / total:.0f} %) left out")
+    overrun, doubt = _tip_overrun(model, names, centerlines, bb.points_mm, params)
+    lap("tip_check")
     timings["total"] = 1e3 * (time.perf_counter() - t_start)
     return Reconstruction(
         points_world_mm=bb.points_mm,
@@ -531,4 +647,6 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
         n_voxels=int(carved.points_mm.shape[0]),
         timings_ms=timings,
         centerline_disks=disks,
+        tip_overrun_px=overrun,
+        suspect_reason=doubt,
     )

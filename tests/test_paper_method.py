@@ -1,4 +1,7 @@
 """The paper's method end to end on rendered views of a known two-tube robot."""
+import re
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -86,8 +89,26 @@ def test_reconstructs_known_robot(setup):
     assert set(rec.silhouettes) == set(rec.centerlines) == {"side", "top"}
     assert rec.centerlines["side"].dtype == np.uint8 and set(np.unique(rec.centerlines["side"])) == {0, 1, 2}
     assert rec.n_voxels > 100
-    assert set(rec.timings_ms) == {"background", "silhouette", "centerline", "bounding_box", "carve", "backbone", "total"}
+    assert set(rec.timings_ms) == {"background", "silhouette", "centerline", "bounding_box", "carve", "backbone", "tip_check",
+                                   "total"}
+    assert rec.suspect_reason is None and max(rec.tip_overrun_px.values()) <= 2.0, rec.tip_overrun_px
     assert rec.timings_ms["total"] >= max(v for k, v in rec.timings_ms.items() if k != "total")
+
+
+def test_a_view_that_lost_the_tip_makes_the_frame_suspect(setup):
+    """The top view shows the robot only to s = 70 mm (a faint tip its silhouette misses): the carving
+    stops there, the side view's centerline goes on for ~25 mm (~200 px) beyond the reprojected tip."""
+    rig, model, params, rng = setup
+    s, pts = robot_backbone()
+    short = s <= 70.0
+    frames = {"side": render(rig["side"], rng, backbone=(s, pts)), "top": render(rig["top"], rng, backbone=(s[short], pts[short]))}
+    rec = reconstruct_paper(model, frames, params)
+    assert rec.length_mm < 75.0
+    assert rec.tip_overrun_px["side"] > 100.0 and rec.tip_overrun_px["top"] <= 2.0, rec.tip_overrun_px
+    assert re.match(r"^side: the centerline goes on \d+ px beyond the reconstructed tip \(limit 8 px\): another view lost "
+                    r"the tube there$", rec.suspect_reason), rec.suspect_reason
+    rec = reconstruct_paper(model, frames, replace(params, max_tip_overrun_px=0.0))
+    assert rec.suspect_reason is None
 
 
 def test_camera_order_side_first(setup):
