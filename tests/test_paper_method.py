@@ -111,6 +111,30 @@ def test_a_view_that_lost_the_tip_makes_the_frame_suspect(setup):
     assert rec.suspect_reason is None
 
 
+def test_centerline_beyond_tip_counts_a_dashed_continuation(setup):
+    """A faint tube's centerline comes in pieces: gaps shorter than a tube diameter do not end it,
+    a piece farther away (clutter) is not counted, and nothing counts behind the tip."""
+    from recon.paper import centerline_beyond_tip_px
+
+    rig = setup[0]
+    cam = rig["side"]
+    s, pts = robot_backbone()
+    uv = cam.project(pts)[0]
+    line = np.zeros((cam.height, cam.width), np.uint8)
+    half = len(pts) // 2
+    cv2.polylines(line, [np.round(uv[:half]).astype(np.int32)], False, 1)
+    beyond = np.round(uv[half:]).astype(np.int32)
+    for k in range(0, len(beyond) - 18, 18):  # dashes of ~4 px, gaps of ~3.5 px (a tube is 7 px wide)
+        cv2.polylines(line, [beyond[k:k + 10]], False, 1)
+    dashed = centerline_beyond_tip_px(cam, line, pts[:half], outer_radius_px=3.0)
+    assert dashed > 0.4 * np.linalg.norm(uv[-1] - uv[half]), dashed
+    assert centerline_beyond_tip_px(cam, line, pts, outer_radius_px=3.0) == 0.0
+    clutter = np.zeros_like(line)
+    cv2.polylines(clutter, [np.round(uv[:half]).astype(np.int32)], False, 1)
+    cv2.line(clutter, tuple(np.int32(uv[half] + (40, 40))), tuple(np.int32(uv[half] + (90, 40))), 1)
+    assert centerline_beyond_tip_px(cam, clutter, pts[:half], outer_radius_px=3.0) == 0.0
+
+
 def test_camera_order_side_first(setup):
     _, model, _, _ = setup
     assert model.camera_names == ("side", "top")
