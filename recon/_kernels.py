@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["profile_edges_nb", "profiles_at_seeds_nb", "profile_values_nb", "coarse_foreground_nb", "bfs_path_nb", "rays_nb"]
+__all__ = ["profile_edges_nb", "profiles_at_seeds_nb", "profile_values_nb", "coarse_foreground_nb", "bfs_path_nb", "rays_nb",
+           "ridge_hits_nb", "near_any_nb"]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -670,4 +671,51 @@ def profile_values_nb(frame, stack, coeff, seeds, tangents, half, nav_max):
         if cnt > 0:
             for j in range(L):
                 out[i, j] /= cnt
+    return out
+
+
+@njit(cache=True, nogil=True)
+def ridge_hits_nb(d, w, max_off, half, threshold):
+    """Per profile of ``|difference|`` values ``d`` (n, L): the tube's core as a ridge (see
+    :func:`recon.subpixel._energy_hits`). Returns ``found`` (n,) bool and ``off`` (n,) px from the seed."""
+    n, L = d.shape
+    m = L - w + 1
+    found = np.zeros(n, np.bool_)
+    off = np.zeros(n)
+    c = np.zeros(L + 1)
+    for i in range(n):
+        for k in range(L):
+            c[k + 1] = c[k] + d[i, k]
+        best = -np.inf
+        j = 0
+        for k in range(m):
+            if abs(k + 0.5 * (w - 1) - half) <= max_off[i]:
+                v = (c[k + w] - c[k]) / w
+                if v > best:
+                    best = v
+                    j = k
+        level = np.median(d[i])
+        found[i] = (best - level > 0.5 * threshold) and (best > 2.0 * level)
+        sw = 0.0
+        swc = 0.0
+        for q in range(j - 1, j + w + 1):
+            col = min(max(q, 0), L - 1)
+            sw += d[i, col]
+            swc += d[i, col] * col
+        off[i] = swc / max(sw, 1e-9) - half
+    return found, off
+
+
+@njit(cache=True, nogil=True)
+def near_any_nb(points, visited, radius):
+    """(n,) bool: which ``points`` (n, 2) lie within ``radius`` of one of ``visited`` (m, 2)."""
+    out = np.zeros(points.shape[0], np.bool_)
+    r2 = radius * radius
+    for i in range(points.shape[0]):
+        for k in range(visited.shape[0]):
+            du = points[i, 0] - visited[k, 0]
+            dv = points[i, 1] - visited[k, 1]
+            if du * du + dv * dv < r2:
+                out[i] = True
+                break
     return out

@@ -55,9 +55,11 @@ try:  # compiled per-pixel loops (optional; the NumPy code below gives the same 
         coarse_foreground_nb,
         frame_coefficients_nb,
         frame_shift_nb,
+        near_any_nb,
         profile_edges_nb,
         profile_values_nb,
         profiles_at_seeds_nb,
+        ridge_hits_nb,
         spline_eval_nb,
         spline_robust_nb,
         tip_along_axis_nb,
@@ -1140,6 +1142,8 @@ def _near(points_px, visited_px, radius_px: float) -> np.ndarray:
     """(n,) bool: which of ``points_px`` (n, 2) lie within ``radius_px`` of one of ``visited_px`` (m, 2)."""
     if len(visited_px) == 0 or len(points_px) == 0:
         return np.zeros(len(points_px), bool)
+    if USE_NUMBA:
+        return near_any_nb(np.ascontiguousarray(points_px, np.float64), np.ascontiguousarray(visited_px, np.float64), float(radius_px))
     d2 = ((np.asarray(points_px)[:, None, :] - np.asarray(visited_px)[None, :, :]) ** 2).sum(axis=2)
     return d2.min(axis=1) < radius_px ** 2
 
@@ -1167,6 +1171,13 @@ def _energy_hits(model, frame, coeff, seeds, t, half, nav, threshold, width_px, 
         d = np.abs(_gather_profiles(model, frame, coeff, seeds, tangents, half, min(int(nav), int(np.floor(major / minor + 1e-9))))[0])
     n, L = d.shape
     w = int(np.clip(np.rint(width_px), 2, L - 2))
+    centres = np.rint(seeds).astype(np.float64)
+    axis = 1 if abs(t[0]) >= abs(t[1]) else 0  # profiles run along a pixel axis (see _gather_profiles)
+    if USE_NUMBA:
+        found, off = ridge_hits_nb(np.ascontiguousarray(d, np.float64), w, np.ascontiguousarray(np.broadcast_to(max_off, (n,)), np.float64),
+                                   float(half), float(threshold))
+        centres[:, axis] += off
+        return found, centres
     c = np.cumsum(np.pad(d, ((0, 0), (1, 0))), axis=1)
     mean = (c[:, w:] - c[:, :-w]) / w  # window j .. j + w - 1
     mid = np.arange(mean.shape[1]) + 0.5 * (w - 1) - half  # window centre's offset from the seed (px)
@@ -1181,9 +1192,7 @@ def _energy_hits(model, frame, coeff, seeds, t, half, nav, threshold, width_px, 
     cols = np.clip(cols, 0, L - 1)
     wt = d[np.arange(n)[:, None], cols]
     off = (wt * cols).sum(axis=1) / np.maximum(wt.sum(axis=1), 1e-9) - half
-    # Profiles run along a pixel axis (see _gather_profiles): along v for a tube running along u.
-    centres = np.rint(seeds).astype(np.float64)
-    centres[:, 1 if abs(t[0]) >= abs(t[1]) else 0] += off
+    centres[:, axis] += off
     return found, centres
 
 
