@@ -507,6 +507,44 @@ def _tip_overrun(model: PaperModel, names, centerlines: dict, points_world_mm, p
     return overrun, reason
 
 
+def _on_silhouettes(cameras, silhouettes: list, points_world_mm: np.ndarray) -> np.ndarray:
+    """(n,) bool: the points project within a pixel of the silhouette in every view (outside an image: not judged)."""
+    ok = np.ones(len(points_world_mm), bool)
+    for cam, sil in zip(cameras, silhouettes):
+        h, w = sil.shape
+        uv = np.rint(cam.project(points_world_mm)[0])
+        inside = np.all(np.isfinite(uv), axis=1) & (uv[:, 0] >= 1) & (uv[:, 1] >= 1) & (uv[:, 0] < w - 1) & (uv[:, 1] < h - 1)
+        iu, iv = uv[inside, 0].astype(int), uv[inside, 1].astype(int)
+        near = np.zeros(int(inside.sum()), bool)
+        for dv in (-1, 0, 1):
+            for du in (-1, 0, 1):
+                near |= sil[iv + dv, iu + du] > 0
+        ok[np.flatnonzero(inside)[~near]] = False
+    return ok
+
+
+def _trim_tip(cameras, silhouettes: list, bb, max_trim_mm: float):
+    """The backbone's end cut back to its last point on every view's silhouette, by at most ``max_trim_mm``.
+
+    Voxels at the tip that both centerlines' ends carve can smear along an
+    epipolar line: the backbone's end hooks off the tube in one view while
+    it lies along the other's ray (wide-3-21 frame 0, a mask session: 8 px
+    off the top view's mask, 24 footprints of error). No robot point lies
+    off a silhouette.
+    """
+    pts = bb.points_mm
+    s = arc_length(pts)
+    near_end = s >= s[-1] - max_trim_mm
+    ok = _on_silhouettes(cameras, silhouettes, pts[near_end])
+    if ok.all() or not ok.any():
+        return bb
+    last = int(np.flatnonzero(near_end)[0] + np.flatnonzero(ok)[-1])
+    if last < 1:
+        return bb
+    pts = pts[:last + 1]
+    return replace(bb, points_mm=pts, tip_mm=pts[-1].copy(), length_mm=float(arc_length(pts)[-1]))
+
+
 def _refined(cameras, centerlines: list, disks: list, bb, voxel_size_mm, params: PaperParams):
     """The backbone moved onto the views' centerlines (:func:`recon.subvoxel.refine_backbone`), resampled.
 
@@ -623,6 +661,7 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
         bb = _continue_to_border(model.rig, names, bb)
     if params.subvoxel is not None:
         bb = _refined(cameras, [centerlines[n] for n in names], [disks[n] for n in names], bb, carved.voxel_size_mm, params)
+        bb = _trim_tip(cameras, [silhouettes[n] for n in names], bb, 4.0 * float(np.max(carved.voxel_size_mm)))
     lap("backbone")
     total = int(carved.points_mm.shape[0])
     if params.max_dropped_fraction < 1.0 and bb.n_dropped > params.max_dropped_fraction * total:

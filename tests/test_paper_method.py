@@ -135,6 +135,32 @@ def test_centerline_beyond_tip_counts_a_dashed_continuation(setup):
     assert centerline_beyond_tip_px(cam, clutter, pts[:half], outer_radius_px=3.0) == 0.0
 
 
+def test_a_tip_hooking_off_a_silhouette_is_cut_back(setup):
+    """The last carved voxels smear along an epipolar line: a backbone whose end runs on 1.5 mm along the
+    side camera's ray (a point there), off the top view's silhouette, ends where it last lies on both."""
+    from recon.backbone import ReconstructedBackbone
+    from recon.paper import _trim_tip
+
+    rig = setup[0]
+    s, pts = robot_backbone(400)
+    cams = [rig["side"], rig["top"]]
+    sils = []
+    for cam in cams:
+        sil = np.zeros((cam.height, cam.width), np.uint8)
+        cv2.polylines(sil, [np.round(cam.project(pts)[0]).astype(np.int32)], False, 1, thickness=9)
+        sils.append(sil)
+    ray = rig["side"].center_world_mm - pts[-1]
+    hook = pts[-1] - np.outer(np.linspace(0.1, 1.5, 15), ray / np.linalg.norm(ray))  # along the side camera's ray: a point in side
+    bb = ReconstructedBackbone(points_mm=np.vstack([pts, hook]), tip_mm=hook[-1], transition_s_mm=np.nan,
+                               transition_mm=np.full(3, np.nan), length_mm=0.0, n_voxels=0, n_dropped=0)
+    cut = _trim_tip(cams, sils, bb, 4.0)
+    # The silhouette's end cap is 4.5 px (9 px wide); a point counts within a pixel (3x3) of it, and the
+    # hook runs ~7.9 px per mm in the top view: cut 0.6-0.9 mm out (samples every 0.1 mm), not 1.5.
+    assert 0.5 <= np.linalg.norm(cut.tip_mm - pts[-1]) <= 0.9, cut.tip_mm - pts[-1]
+    assert np.array_equal(cut.points_mm[-1], cut.tip_mm)
+    assert _trim_tip(cams, sils, replace(bb, points_mm=pts, tip_mm=pts[-1]), 4.0).points_mm.shape == pts.shape
+
+
 def test_camera_order_side_first(setup):
     _, model, _, _ = setup
     assert model.camera_names == ("side", "top")
