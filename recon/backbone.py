@@ -38,7 +38,7 @@ from .centerline import INNER, OUTER
 from .errors import FrameError
 
 __all__ = ["BackboneParams", "ReconstructedBackbone", "order_backbone", "resample_polyline", "arc_length", "back_to_border",
-           "MAX_BORDER_EXTENSION_PX"]
+           "back_to_base_plane", "MAX_BORDER_EXTENSION_PX"]
 
 #: Longest straight continuation (px, in the view where it is longest) of a backbone back to the image border.
 MAX_BORDER_EXTENSION_PX = 48.0
@@ -124,6 +124,29 @@ class ReconstructedBackbone:
     length_mm: float
     n_voxels: int
     n_dropped: int
+
+
+def back_to_base_plane(x0_mm, t0, base_point_world_mm, insertion_axis_world, max_gap_mm: float, step_mm: float) -> np.ndarray:
+    """Points (k, 3) continuing ``x0_mm`` straight back along ``-t0`` to the base plane (world, mm).
+
+    The base plane passes through the base point, across the insertion axis:
+    where the robot leaves its actuation unit. A backbone starts a little in
+    front of it (the images are cut behind it, and a centerline ends short of
+    a cut); the robot goes on straight to it. Only when ``t0`` points away
+    from the plane (cosine with the axis over 0.3) and the way back is at most
+    ``max_gap_mm``; every ``step_mm`` or finer, farthest point (on the plane)
+    first, ``x0_mm`` excluded; empty otherwise.
+    """
+    x0 = np.asarray(x0_mm, np.float64)
+    t0 = np.asarray(t0, np.float64) / np.linalg.norm(t0)
+    axis = np.asarray(insertion_axis_world, np.float64)
+    h = float((x0 - np.asarray(base_point_world_mm, np.float64)) @ axis)
+    cosb = float(t0 @ axis)
+    if not (cosb > 0.3 and 0.0 < h / cosb <= max_gap_mm):
+        return np.zeros((0, 3))
+    gap = h / cosb
+    k = max(1, int(np.ceil(gap / step_mm)))
+    return x0 - np.linspace(gap, 0.0, k, endpoint=False)[:, None] * t0
 
 
 def back_to_border(rig, names, x0_mm, t0, step_mm: float) -> np.ndarray:

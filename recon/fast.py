@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 
 from .background import EigenBackground, EigenBackgroundParams, fit_eigenbackground, to_gray
-from .backbone import back_to_border
+from .backbone import back_to_base_plane, back_to_border
 from .carving import rig_center
 from .epipolar import EpipolarFrame, align_dp, conditioning, monotonic, triangulate_rays
 from .errors import FrameError
@@ -630,13 +630,9 @@ class FastReconstructor:
         axis = rig.insertion_axis_world
         t0 = spl.derivative()(q[0])
         t0 /= np.linalg.norm(t0)
-        h = float((dense[0] - base) @ axis)
-        cosb = float(t0 @ axis)
-        base_ext = 0.0
-        if cosb > 0.3 and 0.0 < h / cosb <= params.max_base_gap_mm:
-            base_ext = h / cosb
-            k = max(1, int(np.ceil(base_ext / fine)))
-            back = dense[0] - np.linspace(base_ext, 0.0, k, endpoint=False)[:, None] * t0
+        back = back_to_base_plane(dense[0], t0, base, axis, params.max_base_gap_mm, fine)
+        base_ext = float(np.linalg.norm(back[0] - dense[0])) if len(back) else 0.0
+        if len(back):
             dense = np.concatenate([back, dense])
         elif any(model.views[n].start_px is not None for n in (a, b)):
             # The robot enters across the image border: the profiles stop short of it by about their

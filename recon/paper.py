@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from .backbone import BackboneParams, arc_length, back_to_border, order_backbone, resample_polyline
+from .backbone import BackboneParams, arc_length, back_to_base_plane, back_to_border, order_backbone, resample_polyline
 from .background import EigenBackgroundParams, difference_image, fit_eigenbackground, to_gray
 from .carving import CarvingParams, bounding_box, carve
 from .centerline import CenterlineParams, centerline_params_for, extract_centerline
@@ -105,6 +105,10 @@ class PaperParams:
         lost the tube there (a faint stretch its silhouette missed), and the
         carving, which keeps only what both views see, stopped short. Not in
         the paper; 0 disables it.
+    max_base_gap_mm : float
+        A backbone that starts up to this far (mm) in front of the base plane
+        is continued straight back to it (not in the paper; as the fast
+        method's ``max_base_gap_mm``).
     max_dropped_fraction : float
         The frame is refused (:class:`~recon.errors.FrameError`) when the
         backbone leaves out more than this fraction of the carved voxels:
@@ -134,6 +138,7 @@ class PaperParams:
     difference_blur_px: float = 0.5
     max_tip_overrun_px: float = 8.0
     max_dropped_fraction: float = 0.1
+    max_base_gap_mm: float = 6.0
     carving: CarvingParams = field(default_factory=CarvingParams)
     backbone: BackboneParams = field(default_factory=BackboneParams)
     subvoxel: SubvoxelParams | None = field(default_factory=SubvoxelParams)
@@ -413,6 +418,15 @@ def silhouette_bridge_check(cameras, silhouettes, voxel_size_mm):
     return check
 
 
+def _chord_index(pts: np.ndarray, length_mm: float) -> int:
+    """Index of the backbone point ~5 mm (at most a third of the robot) from its first: the chord to it
+    gives the direction at the base. The first carved points can curl by a voxel, and a 2 mm chord ran a
+    continuation off the tube (wide-1-63 frame 0: 28 px off in the top view); a precurved outer tube bends
+    away from a 5 mm chord by ~0.1 mm."""
+    step = float(np.median(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    return min(len(pts) - 1, max(2, int(np.ceil(min(5.0, length_mm / 3.0) / max(step, 1e-6)))))
+
+
 def _continue_to_border(rig: RigCalibration, names, bb):
     """The backbone continued straight back to where the first camera loses it (robot entering across the border).
 
@@ -424,8 +438,27 @@ def _continue_to_border(rig: RigCalibration, names, bb):
     if len(pts) < 3:
         return bb
     step = float(np.median(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
-    k = min(len(pts) - 1, max(2, int(np.ceil(2.0 / max(step, 1e-6)))))  # the first ~2 mm give the direction
-    back = back_to_border(rig, names, pts[0], pts[k] - pts[0], step)
+    back = back_to_border(rig, names, pts[0], pts[_chord_index(pts, bb.length_mm)] - pts[0], step)
+    if not len(back):
+        return bb
+    ext = float(np.linalg.norm(back[0] - pts[0]))
+    return replace(bb, points_mm=np.concatenate([back, pts]), length_mm=bb.length_mm + ext,
+                   transition_s_mm=bb.transition_s_mm + ext)
+
+
+def _continue_to_base(rig: RigCalibration, bb, max_gap_mm: float):
+    """The backbone continued straight back to the base plane (:func:`recon.backbone.back_to_base_plane`).
+
+    The images are cut behind the base (``cut_behind_base``) and the
+    centerlines end a disk short of the cut: on the wide suite such backbones
+    started 14-24 px (pixel footprints) in front of the base, the frames'
+    largest errors.
+    """
+    pts = bb.points_mm
+    if len(pts) < 3:
+        return bb
+    back = back_to_base_plane(pts[0], pts[_chord_index(pts, bb.length_mm)] - pts[0], rig.base_point_world_mm,
+                              rig.insertion_axis_world, max_gap_mm, float(np.median(np.linalg.norm(np.diff(pts, axis=0), axis=1))))
     if not len(back):
         return bb
     ext = float(np.linalg.norm(back[0] - pts[0]))
@@ -659,6 +692,8 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
     )
     if any(base_borders(model.rig[n], model.rig.base_point_world_mm) for n in names):
         bb = _continue_to_border(model.rig, names, bb)
+    else:
+        bb = _continue_to_base(model.rig, bb, params.max_base_gap_mm)
     if params.subvoxel is not None:
         bb = _refined(cameras, [centerlines[n] for n in names], [disks[n] for n in names], bb, carved.voxel_size_mm, params)
         bb = _trim_tip(cameras, [silhouettes[n] for n in names], bb, 4.0 * float(np.max(carved.voxel_size_mm)))

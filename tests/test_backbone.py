@@ -176,3 +176,21 @@ def test_back_to_border_stops_where_the_first_camera_loses_the_robot(paper_scene
     assert np.allclose(back[-1], x0 - step * t0 / np.linalg.norm(t0))
     along_axis = back_to_border(rig, names, np.array([2.0, 0.0, 0.0]), np.array(rig.insertion_axis_world, float), 0.25)
     assert all((p - rig.base_point_world_mm) @ rig.insertion_axis_world >= -1e-9 for p in along_axis)
+
+
+def test_back_to_base_plane():
+    """Straight back along -t0 to the plane through the base across the axis; only when it points away from
+    the plane and the gap is short."""
+    from recon.backbone import back_to_base_plane
+
+    base, axis = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    t0 = np.array([1.0, 0.5, 0.0])
+    x0 = np.array([4.0, 2.0, 1.0])
+    back = back_to_base_plane(x0, t0, base, axis, 6.0, 0.5)
+    np.testing.assert_allclose(back[0, 0], 0.0, atol=1e-12)  # on the base plane, farthest first
+    np.testing.assert_allclose(np.cross(back - x0, t0), 0.0, atol=1e-12)  # on the line through x0 along t0
+    assert np.all(np.diff(back[:, 0]) > 0) and back[-1, 0] < x0[0]
+    assert np.linalg.norm(np.diff(back, axis=0), axis=1).max() <= 0.5 + 1e-9
+    assert len(back_to_base_plane(x0, t0, base, axis, 4.0, 0.5)) == 0  # 4.5 mm back: beyond the limit
+    assert len(back_to_base_plane(x0, -t0, base, axis, 6.0, 0.5)) == 0  # pointing back towards the base
+    assert len(back_to_base_plane(x0, np.array([0.2, 1.0, 0.0]), base, axis, 60.0, 0.5)) == 0  # nearly across the axis
