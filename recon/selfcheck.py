@@ -917,7 +917,7 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
 
 
 def _behind_base_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
-    """How far the backbone reaches behind the base plane: the largest distance from the base of a point behind it (pixel footprints).
+    """How far the backbone reaches behind the base plane: the largest distance from the base of a point on or behind it (pixel footprints).
 
     The robot leaves its base along the insertion axis: no backbone point can
     lie behind the plane through the base across the axis, and what does is off
@@ -926,7 +926,9 @@ def _behind_base_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
     the cameras' mean footprint at that point (mm per px, depth / focal length).
     """
     b = np.asarray(rig.base_point_world_mm, np.float64)
-    pts = points_world_mm[(points_world_mm - b) @ np.asarray(rig.insertion_axis_world, np.float64) < 0.0]
+    # On the plane counts too: a backbone continued back to the base plane ends there, and whether that
+    # point is behind it was up to rounding (wide-1-65 frame 1: 1.34 mm, 12 footprints, from the base).
+    pts = points_world_mm[(points_world_mm - b) @ np.asarray(rig.insertion_axis_world, np.float64) <= 1e-6]
     if not len(pts):
         return 0.0
     fp = []

@@ -337,3 +337,6 @@ def test_a_backbone_that_starts_behind_the_base_is_flagged(model, rendered):
     assert not sc.ok
     assert "behind the robot base" in sc.reason, sc.reason
     assert _check(model, rendered, rendered.truth).figures["side"]["behind_base_px"] == 0.0
+    # On the plane itself, 2 mm aside (a continuation to the base plane that missed the base): the same.
+    on_plane = np.concatenate([[base + 2.0 * aside], rendered.truth])
+    assert _check(model, rendered, on_plane).figures["side"]["behind_base_px"] > SelfCheckParams().max_behind_base_px
