@@ -616,6 +616,34 @@ def base_borders(camera, base_point_world_mm) -> list:
     return [b for b in BORDERS if b in out]
 
 
+def _backbone(model: PaperModel, names, carved, silhouettes: dict, centerlines: dict, disks: dict, params: PaperParams):
+    """The carved voxels ordered into a backbone, continued to the base (plane or image border), refined.
+
+    Raises :class:`~recon.errors.FrameError` when the backbone leaves out more
+    than ``max_dropped_fraction`` of the voxels.
+    """
+    cameras = [model.rig[n] for n in names]
+    sils = [silhouettes[n] for n in names]
+    bb = order_backbone(carved.points_mm, carved.labels, model.rig.base_point_world_mm, model.rig.insertion_axis_world,
+                        params.backbone, voxel_size_mm=carved.voxel_size_mm,
+                        bridge_check=silhouette_bridge_check(cameras, sils, carved.voxel_size_mm))
+    total = int(carved.points_mm.shape[0])
+    if params.max_dropped_fraction < 1.0 and bb.n_dropped > params.max_dropped_fraction * total:
+        # A piece of the robot the backbone could not bridge to: which piece
+        # is the robot, and what joins them, is a guess (wide-5-1: the distal
+        # half alone, 27 mm off).
+        raise FrameError(f"the carved robot is in pieces the backbone cannot join: {bb.n_dropped} of {total} voxels "
+                         f"({100.0 * bb.n_dropped / total:.0f} %) left out")
+    if any(base_borders(model.rig[n], model.rig.base_point_world_mm) for n in names):
+        bb = _continue_to_border(model.rig, names, bb)
+    else:
+        bb = _continue_to_base(model.rig, bb, params.max_base_gap_mm)
+    if params.subvoxel is not None:
+        bb = _refined(cameras, [centerlines[n] for n in names], [disks[n] for n in names], bb, carved.voxel_size_mm, params)
+        bb = _trim_tip(cameras, sils, bb, 4.0 * float(np.max(carved.voxel_size_mm)))
+    return bb
+
+
 def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = PaperParams()) -> Reconstruction:
     """Reconstruct the backbone from one frame per camera.
 
@@ -681,30 +709,8 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
         centerline_labels=[centerlines[n] for n in names],
     )
     lap("carve")
-    bb = order_backbone(
-        carved.points_mm,
-        carved.labels,
-        model.rig.base_point_world_mm,
-        model.rig.insertion_axis_world,
-        params.backbone,
-        voxel_size_mm=carved.voxel_size_mm,
-        bridge_check=silhouette_bridge_check(cameras, [silhouettes[n] for n in names], carved.voxel_size_mm),
-    )
-    if any(base_borders(model.rig[n], model.rig.base_point_world_mm) for n in names):
-        bb = _continue_to_border(model.rig, names, bb)
-    else:
-        bb = _continue_to_base(model.rig, bb, params.max_base_gap_mm)
-    if params.subvoxel is not None:
-        bb = _refined(cameras, [centerlines[n] for n in names], [disks[n] for n in names], bb, carved.voxel_size_mm, params)
-        bb = _trim_tip(cameras, [silhouettes[n] for n in names], bb, 4.0 * float(np.max(carved.voxel_size_mm)))
+    bb = _backbone(model, names, carved, silhouettes, centerlines, disks, params)
     lap("backbone")
-    total = int(carved.points_mm.shape[0])
-    if params.max_dropped_fraction < 1.0 and bb.n_dropped > params.max_dropped_fraction * total:
-        # A piece of the robot the backbone could not bridge to: which piece
-        # is the robot, and what joins them, is a guess (wide-5-1: the distal
-        # half alone, 27 mm off).
-        raise FrameError(f"the carved robot is in pieces the backbone cannot join: {bb.n_dropped} of {total} voxels "
-                         f"({100.0 * bb.n_dropped / total:.0f} %) left out")
     overrun, doubt = _tip_overrun(model, names, centerlines, bb.points_mm, params)
     lap("tip_check")
     timings["total"] = 1e3 * (time.perf_counter() - t_start)
