@@ -547,6 +547,94 @@ def _draw_centerline(vc: ViewCenterline, shape, s_trans: float) -> np.ndarray:
     return img
 
 
+def _to_base(model: FastModel, params: FastParams, dense: np.ndarray, t0: np.ndarray, fine: float) -> tuple:
+    """The dense curve (world, mm) continued straight back along its start tangent ``t0`` to the base
+    plane (``max_base_gap_mm``), or, where the robot enters across the image border, to where the first
+    camera loses it; and the length (mm) added before the base plane (0 for the border)."""
+    rig = model.rig
+    t0 = t0 / np.linalg.norm(t0)
+    back = back_to_base_plane(dense[0], t0, rig.base_point_world_mm, rig.insertion_axis_world, params.max_base_gap_mm, fine)
+    if len(back):
+        return np.concatenate([back, dense]), float(np.linalg.norm(back[0] - dense[0]))
+    if any(model.views[n].start_px is not None for n in model.pair):
+        # The profiles stop short of the border by about their window.
+        return np.concatenate([back_to_border(rig, model.pair, dense[0], t0, fine), dense]), 0.0
+    return dense, 0.0
+
+
+def _to_tip(model: FastModel, views: dict, params: FastParams, dense: np.ndarray, t1: np.ndarray, s_tr: dict,
+            fine: float) -> np.ndarray:
+    """The dense curve (world, mm) continued, or cut, along its end tangent ``t1`` to the silhouette ends
+    seen in both views, less the end cap's extent (the views weighted by the square of their px per mm)."""
+    a, b = model.pair
+    t1 = t1 / np.linalg.norm(t1)
+    x_end = dense[-1]
+    lam_num = lam_den = 0.0
+    tip_radius = params.inner_tube_radius_mm
+    if not any(np.isfinite(v) for v in s_tr.values()):
+        wend = np.median(np.concatenate([views[n].width_px[-10:] / (2 * model.views[n].outer_radius_px) for n in (a, b)]))
+        if wend > 0.5 * (1 + params.inner_tube_radius_mm / params.outer_tube_radius_mm):
+            tip_radius = params.outer_tube_radius_mm
+    for n in (a, b):
+        cam = model.rig[n]
+        uv, z = _project(cam, np.stack([x_end, x_end + t1]))
+        g_vec = uv[1] - uv[0]
+        g = float(np.linalg.norm(g_vec))
+        if g < 1e-6:
+            continue
+        off = float((views[n].end_px - views[n].shift_px - uv[0]) @ (g_vec / g))
+        dv = x_end - cam.center_world_mm
+        dv /= np.linalg.norm(dv)
+        cap_px = tip_radius * abs(float(t1 @ dv)) * cam.K[0, 0] / z[0]
+        lam = (off - cap_px) / g
+        lam_num += g * g * lam
+        lam_den += g * g
+    lam = lam_num / lam_den if lam_den > 0 else 0.0
+    if lam > 0:
+        k = max(1, int(np.ceil(lam / fine)))
+        return np.concatenate([dense, x_end + np.linspace(lam / k, lam, k)[:, None] * t1])
+    if lam < 0:
+        s_d = _arc(dense)
+        keep_d = s_d <= s_d[-1] + lam
+        if keep_d.sum() >= 2:
+            cut = _interp_rows(np.array([s_d[-1] + lam]), s_d, dense)
+            return np.concatenate([dense[keep_d], cut])
+    return dense
+
+
+def _transition(matched, s_tr: dict, q: np.ndarray, spl, base_ext: float, points: np.ndarray) -> tuple:
+    """Arc length (mm) and world point of the outer tube's end: the views' estimates combined through the
+    matched parameters (``matched``: per view ``(name, s, confidence)``); NaN when no view has one."""
+    trans = []
+    for n, s_n, c_n in matched:
+        st = s_tr[n]
+        if np.isfinite(st) and s_n[0] < st < s_n[-1]:
+            qt = float(np.interp(st, _strictly_increasing(s_n), q))
+            trans.append((qt, float(np.interp(st, _strictly_increasing(s_n), c_n)) + 1e-3))
+    if not trans:
+        return float("nan"), np.full(3, np.nan)
+    qt = sum(v * wt for v, wt in trans) / sum(wt for _, wt in trans)
+    transition_s = float(base_ext + _arc(spl(np.linspace(q[0], qt, 64)))[-1])
+    return transition_s, _interp_rows(np.array([transition_s]), _arc(points), points)[0]
+
+
+def _check_tip_agreement(model: FastModel, views: dict, sa_: _ViewSamples, sb_: _ViewSamples, params: FastParams) -> None:
+    """Raise :class:`~recon.errors.FrameError` when the views' ends lie farther apart along the tube than
+    ``max_tip_mismatch_px`` plus a tube diameter (one view lost the tube before its tip, or followed something else)."""
+    a, b = model.pair
+    short = _tip_mismatch(model, views, sa_, sb_)
+    # Each view's silhouette ends at the rim of the end face that view sees: up to a tube diameter apart.
+    cap_px = 2.0 * max(model.views[n].inner_radius_px for n in (a, b))
+    if min(abs(v) for v in short.values()) > params.max_tip_mismatch_px + cap_px:
+        n_short = [n for n in (a, b) if short[n] > 0]
+        if len(n_short) == 1:
+            n = n_short[0]
+            raise FrameError(f"the views disagree on the tip: {n}'s ends {short[n]:.0f} px along the tube short of where "
+                             f"{b if n == a else a}'s tip puts it (one view lost the tube before its tip, or followed something else)")
+        raise FrameError(f"the views disagree on the tip by {min(abs(v) for v in short.values()):.0f} px along the tube "
+                         "(epipolar planes of the two silhouette ends): a view followed something else")
+
+
 class FastReconstructor:
     """The per-frame callable of the fast method (keeps the previous frame for the jump check)."""
 
@@ -561,17 +649,12 @@ class FastReconstructor:
         self._prev = None
         self._roi = {}
 
-    def __call__(self, frames: dict) -> FastReconstruction:
+    def _extract_views(self, frames: dict, timings: dict, detail: dict) -> dict:
+        """Each view's sub-pixel centerline (:func:`recon.subpixel.extract_view`), from last frame's region of
+        interest; ``view_<name>`` wall times (ms) into ``timings``, the stages' into ``detail``."""
         model, params = self.model, self.params
-        timings = {}
-        t_start = t = time.perf_counter()
         views = {}
-        detail = {}
-        for name in model.pair:
-            if name not in frames or frames[name] is None:
-                raise FrameError("no frame", name)
-            vm = model.views[name]
-            _check_tube_widths(name, vm, params.min_tube_width_px)
+        t = time.perf_counter()
         for name in model.pair:
             stages = {}
             roi = self._roi.get(name)
@@ -588,23 +671,27 @@ class FastReconstructor:
             for k, v in stages.items():
                 detail[f"{name}_{k}"] = v
             t = now
+        return views
+
+    def __call__(self, frames: dict) -> FastReconstruction:
+        model, params = self.model, self.params
+        timings = {}
+        t_start = time.perf_counter()
+        detail = {}
+        for name in model.pair:
+            if name not in frames or frames[name] is None:
+                raise FrameError("no frame", name)
+            vm = model.views[name]
+            _check_tube_widths(name, vm, params.min_tube_width_px)
+        views = self._extract_views(frames, timings, detail)
+        t = time.perf_counter()
         a, b = model.pair
         rig = model.rig
         sa_, sb_ = (_view_samples(model, n, views[n], params.sample_step_px) for n in (a, b))
         lap = time.perf_counter()
         detail["rays"] = 1e3 * (lap - t)
         tol = 2.0 / float(rig[a].K[0, 0])  # ~2 px of epipolar angle
-        short = _tip_mismatch(model, views, sa_, sb_)
-        # Each view's silhouette ends at the rim of the end face that view sees: up to a tube diameter apart.
-        cap_px = 2.0 * max(model.views[n].inner_radius_px for n in (a, b))
-        if min(abs(v) for v in short.values()) > params.max_tip_mismatch_px + cap_px:
-            n_short = [n for n in (a, b) if short[n] > 0]
-            if len(n_short) == 1:
-                n = n_short[0]
-                raise FrameError(f"the views disagree on the tip: {n}'s ends {short[n]:.0f} px along the tube short of where "
-                                 f"{b if n == a else a}'s tip puts it (one view lost the tube before its tip, or followed something else)")
-            raise FrameError(f"the views disagree on the tip by {min(abs(v) for v in short.values()):.0f} px along the tube "
-                             "(epipolar planes of the two silhouette ends): a view followed something else")
+        _check_tip_agreement(model, views, sa_, sb_, params)
         s_a, s_b, da, db, ca, cb, how = _correspond(sa_, sb_, tol)
         X, gap = triangulate_rays(model.epipolar.center_a, da, model.epipolar.center_b, db)
         keep = gap < params.max_ray_gap_mm
@@ -625,72 +712,12 @@ class FastReconstructor:
         n_dense = max(8, int(chord / fine))
         qq = np.linspace(q[0], q[-1], n_dense)
         dense = spl(qq)
-        # Base: continue straight back to the base plane.
-        base = rig.base_point_world_mm
-        axis = rig.insertion_axis_world
-        t0 = spl.derivative()(q[0])
-        t0 /= np.linalg.norm(t0)
-        back = back_to_base_plane(dense[0], t0, base, axis, params.max_base_gap_mm, fine)
-        base_ext = float(np.linalg.norm(back[0] - dense[0])) if len(back) else 0.0
-        if len(back):
-            dense = np.concatenate([back, dense])
-        elif any(model.views[n].start_px is not None for n in (a, b)):
-            # The robot enters across the image border: the profiles stop short of it by about their
-            # window; continue straight back to where the first camera loses it.
-            dense = np.concatenate([back_to_border(rig, (a, b), dense[0], t0, fine), dense])
-        # Tip: continue to the silhouette ends seen in both views, less the end cap's extent.
-        t1 = spl.derivative()(q[-1])
-        t1 /= np.linalg.norm(t1)
-        x_end = dense[-1]
-        lam_num = lam_den = 0.0
-        tip_radius = params.inner_tube_radius_mm
+        dense, base_ext = _to_base(model, params, dense, spl.derivative()(q[0]), fine)
         s_tr = {n: _transition_s(views[n], model.views[n]) for n in (a, b)}
-        if not any(np.isfinite(v) for v in s_tr.values()):
-            wend = np.median(np.concatenate([views[n].width_px[-10:] / (2 * model.views[n].outer_radius_px) for n in (a, b)]))
-            if wend > 0.5 * (1 + params.inner_tube_radius_mm / params.outer_tube_radius_mm):
-                tip_radius = params.outer_tube_radius_mm
-        for n in (a, b):
-            cam = rig[n]
-            uv, z = _project(cam, np.stack([x_end, x_end + t1]))
-            g_vec = uv[1] - uv[0]
-            g = float(np.linalg.norm(g_vec))
-            if g < 1e-6:
-                continue
-            off = float((views[n].end_px - views[n].shift_px - uv[0]) @ (g_vec / g))
-            dv = x_end - cam.center_world_mm
-            dv /= np.linalg.norm(dv)
-            cap_px = tip_radius * abs(float(t1 @ dv)) * cam.K[0, 0] / z[0]
-            lam = (off - cap_px) / g
-            lam_num += g * g * lam
-            lam_den += g * g
-        lam = lam_num / lam_den if lam_den > 0 else 0.0
-        if lam > 0:
-            k = max(1, int(np.ceil(lam / fine)))
-            dense = np.concatenate([dense, x_end + np.linspace(lam / k, lam, k)[:, None] * t1])
-        elif lam < 0:
-            s_d = _arc(dense)
-            keep_d = s_d <= s_d[-1] + lam
-            if keep_d.sum() >= 2:
-                cut = _interp_rows(np.array([s_d[-1] + lam]), s_d, dense)
-                dense = np.concatenate([dense[keep_d], cut])
+        dense = _to_tip(model, views, params, dense, spl.derivative()(q[-1]), s_tr, fine)
         points = _resample(dense, params.output_step_mm)
         length = float(_arc(points)[-1])
-        # Transition: combine the views' estimates through the matched parameters.
-        trans = []
-        for n, s_n, c_n in ((a, s_a, ca), (b, s_b, cb)):
-            st = s_tr[n]
-            if np.isfinite(st) and s_n[0] < st < s_n[-1]:
-                qt = float(np.interp(st, _strictly_increasing(s_n), q))
-                trans.append((qt, float(np.interp(st, _strictly_increasing(s_n), c_n)) + 1e-3))
-        if trans:
-            qt = sum(v * wt for v, wt in trans) / sum(wt for _, wt in trans)
-            dq = _arc(spl(np.linspace(q[0], qt, 64)))[-1]
-            transition_s = float(base_ext + dq)
-            s_pts = _arc(points)
-            transition_world = _interp_rows(np.array([transition_s]), s_pts, points)[0]
-        else:
-            transition_s = float("nan")
-            transition_world = np.full(3, np.nan)
+        transition_s, transition_world = _transition(((a, s_a, ca), (b, s_b, cb)), s_tr, q, spl, base_ext, points)
         now = time.perf_counter()
         detail["ends"] = 1e3 * (now - lap)
         timings["triangulate"] = 1e3 * (now - t)
