@@ -427,6 +427,15 @@ def _chord_index(pts: np.ndarray, length_mm: float) -> int:
     return min(len(pts) - 1, max(2, int(np.ceil(min(5.0, length_mm / 3.0) / max(step, 1e-6)))))
 
 
+def _continued_back(bb, back: np.ndarray):
+    """The backbone with the points ``back`` (farthest first) put before its first point."""
+    if not len(back):
+        return bb
+    ext = float(np.linalg.norm(back[0] - bb.points_mm[0]))
+    return replace(bb, points_mm=np.concatenate([back, bb.points_mm]), length_mm=bb.length_mm + ext,
+                   transition_s_mm=bb.transition_s_mm + ext)
+
+
 def _continue_to_border(rig: RigCalibration, names, bb):
     """The backbone continued straight back to where the first camera loses it (robot entering across the border).
 
@@ -438,12 +447,7 @@ def _continue_to_border(rig: RigCalibration, names, bb):
     if len(pts) < 3:
         return bb
     step = float(np.median(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
-    back = back_to_border(rig, names, pts[0], pts[_chord_index(pts, bb.length_mm)] - pts[0], step)
-    if not len(back):
-        return bb
-    ext = float(np.linalg.norm(back[0] - pts[0]))
-    return replace(bb, points_mm=np.concatenate([back, pts]), length_mm=bb.length_mm + ext,
-                   transition_s_mm=bb.transition_s_mm + ext)
+    return _continued_back(bb, back_to_border(rig, names, pts[0], pts[_chord_index(pts, bb.length_mm)] - pts[0], step))
 
 
 def _continue_to_base(rig: RigCalibration, bb, max_gap_mm: float):
@@ -457,13 +461,9 @@ def _continue_to_base(rig: RigCalibration, bb, max_gap_mm: float):
     pts = bb.points_mm
     if len(pts) < 3:
         return bb
-    back = back_to_base_plane(pts[0], pts[_chord_index(pts, bb.length_mm)] - pts[0], rig.base_point_world_mm,
-                              rig.insertion_axis_world, max_gap_mm, float(np.median(np.linalg.norm(np.diff(pts, axis=0), axis=1))))
-    if not len(back):
-        return bb
-    ext = float(np.linalg.norm(back[0] - pts[0]))
-    return replace(bb, points_mm=np.concatenate([back, pts]), length_mm=bb.length_mm + ext,
-                   transition_s_mm=bb.transition_s_mm + ext)
+    step = float(np.median(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    return _continued_back(bb, back_to_base_plane(pts[0], pts[_chord_index(pts, bb.length_mm)] - pts[0], rig.base_point_world_mm,
+                                                  rig.insertion_axis_world, max_gap_mm, step))
 
 
 #: A view's centerline within the outer tube's image radius plus this (px) of the reprojected
@@ -521,7 +521,6 @@ def centerline_beyond_tip_px(camera, centerline: np.ndarray, points_world_mm: np
     near_tip = np.zeros_like(on)
     cv2.circle(near_tip, (int(round(uv[-1, 0])), int(round(uv[-1, 1]))), reach + 3, 1, -1)
     ids = np.unique(labels[(near_tip > 0) & (labels > 0)])
-    ids = ids[ids > 0]
     return float((np.isin(labels, ids) & (beyond > 0)).sum()) if len(ids) else 0.0
 
 
