@@ -558,6 +558,77 @@ def frame_coefficients(model: ViewModel, frame: np.ndarray) -> np.ndarray:
     return np.concatenate([[1.0], c]).astype(np.float32)
 
 
+def _coarse_foreground(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, box: tuple) -> tuple:
+    """The coarse foreground mask (uint8, 1 = foreground) of ``box`` = (x0, y0, x1, y1) coarse px, whether
+    any pixel is foreground, and the largest excess over the threshold (gray levels)."""
+    f = model.factor
+    hc, wc = model.coarse_shape
+    rx0, ry0, rx1, ry1 = box
+    k = model.coarse_basis.shape[0]
+    # Foreground: the 2x2 average's difference from the background over the threshold (cheap: coarse arrays),
+    # or, within _ABS_REACH coarse pixels of such a pixel, the 2x2 pixels' mean absolute difference (the
+    # background rebuilt at 4 pixels): across a tube a coarse pixel or two wide, its dark rims and a
+    # highlight brighter than the backdrop can cancel in the average over a few coarse pixels along it.
+    if USE_NUMBA:
+        lo, hi = _central_offsets(f)
+        mask, peak = coarse_foreground_nb(frame, f, lo, hi, rx0, ry0, rx1, ry1, model.coarse_mean.reshape(hc, wc),
+                                          model.coarse_basis.reshape(k, hc, wc), model.coarse_stack, model.coarse_threshold,
+                                          coeff.astype(np.float64), _ABS_REACH)
+        found = peak > 0.0
+    else:
+        fc = _downsample(frame[ry0 * f: ry1 * f, rx0 * f: rx1 * f], f).astype(np.float32)
+        basis = model.coarse_basis.reshape(k, hc, wc)[:, ry0:ry1, rx0:rx1]
+        res = fc - model.coarse_mean.reshape(hc, wc)[ry0:ry1, rx0:rx1] - np.tensordot(coeff[1:], basis, axes=1)
+        thr = model.coarse_threshold[ry0:ry1, rx0:rx1]
+        excess = np.abs(res) - thr
+        fg = excess > 0
+        near = cv2.dilate(fg.view(np.uint8), np.ones((2 * _ABS_REACH + 1,) * 2, np.uint8)).view(bool) & ~fg
+        if near.any():
+            abs_excess = coarse_abs_difference(model, frame, coeff, (rx0, ry0, rx1, ry1)) - thr
+            fg |= near & (abs_excess > 0)
+            excess = np.where(near, np.maximum(excess, abs_excess), excess)
+        found = bool(fg.any())
+        peak = float(excess.max()) if excess.size else 0.0
+        mask = fg.view(np.uint8).copy()
+    return mask, found, peak
+
+
+def _traced_path(mask: np.ndarray, rect: tuple, origin: tuple, coarse_shape: tuple, base: tuple) -> tuple:
+    """The robot's path through its flood-filled region (``mask == 2``; ``rect`` = (sx, sy, sw, sh) in the
+    coarse image, ``mask`` offset by ``origin`` = (rx0, ry0)), from the pixel nearest ``base`` (coarse px).
+
+    Returns ``(path, g, region, x0p, y0p)``: (n, 2) (y, x) pixels of the grid pooled ``g`` x ``g``, start
+    first; the region (coarse px) from ``(x0p, y0p)``.
+    """
+    sx, sy, sw, sh = rect
+    rx0, ry0 = origin
+    hc, wc = coarse_shape
+    bx, by = base
+    # The path is traced on the region pooled 2x2 (4x fewer graph nodes; the fine stage re-centres).
+    x0p, y0p = sx - (sx & 1), sy - (sy & 1)
+    x1p, y1p = min(wc, sx + sw + ((sx + sw) & 1)), min(hc, sy + sh + ((sy + sh) & 1))
+    region = np.zeros((y1p - y0p, x1p - x0p), np.uint8)
+    region[sy - y0p: sy - y0p + sh, sx - x0p: sx - x0p + sw] = mask[sy - ry0: sy - ry0 + sh, sx - rx0: sx - rx0 + sw] == 2
+    ph, pw = region.shape[0] // 2, region.shape[1] // 2
+    if ph and pw:
+        rr = region[: 2 * ph, : 2 * pw]
+        pooled = rr[0::2, 0::2] | rr[1::2, 0::2] | rr[0::2, 1::2] | rr[1::2, 1::2]
+    else:
+        pooled = region
+    if pooled.size == 0 or not pooled.any():
+        g, x0p, y0p = 1, sx, sy  # degenerate (tiny) region: no pooling
+        pooled = region = (mask[sy - ry0:sy - ry0 + sh, sx - rx0:sx - rx0 + sw] == 2).view(np.uint8)
+    else:
+        g = 2
+    ry, rx = np.nonzero(pooled)
+    k0 = int(np.argmin(((rx + 0.5) * g + x0p - 0.5 - bx) ** 2 + ((ry + 0.5) * g + y0p - 0.5 - by) ** 2))
+    if USE_NUMBA:
+        path = bfs_path_nb(np.ascontiguousarray(pooled, dtype=np.uint8), int(ry[k0]), int(rx[k0]))
+    else:
+        path = _geodesic_path(pooled.astype(bool), (int(ry[k0]), int(rx[k0])))
+    return path, g, region, x0p, y0p
+
+
 def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px: int = 1,
                 base_search_px: float = 24.0, min_region: int = 8) -> CoarseResult:
     """Coarse stage: background coefficients, robot region at the base, ordered path.
@@ -588,32 +659,7 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
         rx0, ry0 = max(0, min(int(roi[0]), bwin[0])), max(0, min(int(roi[1]), bwin[1]))
         rx1, ry1 = min(wc, max(int(roi[2]), bwin[2])), min(hc, max(int(roi[3]), bwin[3]))
     hr, wr = ry1 - ry0, rx1 - rx0
-    k = model.coarse_basis.shape[0]
-    # Foreground: the 2x2 average's difference from the background over the threshold (cheap: coarse arrays),
-    # or, within _ABS_REACH coarse pixels of such a pixel, the 2x2 pixels' mean absolute difference (the
-    # background rebuilt at 4 pixels): across a tube a coarse pixel or two wide, its dark rims and a
-    # highlight brighter than the backdrop can cancel in the average over a few coarse pixels along it.
-    if USE_NUMBA:
-        lo, hi = _central_offsets(f)
-        mask, peak = coarse_foreground_nb(frame, f, lo, hi, rx0, ry0, rx1, ry1, model.coarse_mean.reshape(hc, wc),
-                                          model.coarse_basis.reshape(k, hc, wc), model.coarse_stack, model.coarse_threshold,
-                                          coeff.astype(np.float64), _ABS_REACH)
-        found = peak > 0.0
-    else:
-        fc = _downsample(frame[ry0 * f: ry1 * f, rx0 * f: rx1 * f], f).astype(np.float32)
-        basis = model.coarse_basis.reshape(k, hc, wc)[:, ry0:ry1, rx0:rx1]
-        res = fc - model.coarse_mean.reshape(hc, wc)[ry0:ry1, rx0:rx1] - np.tensordot(coeff[1:], basis, axes=1)
-        thr = model.coarse_threshold[ry0:ry1, rx0:rx1]
-        excess = np.abs(res) - thr
-        fg = excess > 0
-        near = cv2.dilate(fg.view(np.uint8), np.ones((2 * _ABS_REACH + 1,) * 2, np.uint8)).view(bool) & ~fg
-        if near.any():
-            abs_excess = coarse_abs_difference(model, frame, coeff, (rx0, ry0, rx1, ry1)) - thr
-            fg |= near & (abs_excess > 0)
-            excess = np.where(near, np.maximum(excess, abs_excess), excess)
-        found = bool(fg.any())
-        peak = float(excess.max()) if excess.size else 0.0
-        mask = fg.view(np.uint8).copy()
+    mask, found, peak = _coarse_foreground(model, frame, coeff, (rx0, ry0, rx1, ry1))
     if not found:
         if roi is not None:
             return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)
@@ -643,29 +689,7 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
     if roi is not None and (sx == 0 and rx0 > 0 or sy == 0 and ry0 > 0 or sx + sw == wr and rx1 < wc or sy + sh == hr and ry1 < hc):
         return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)  # outgrew the ROI
     sx, sy = sx + rx0, sy + ry0
-    # The path is traced on the region pooled 2x2 (4x fewer graph nodes; the fine stage re-centres).
-    x0p, y0p = sx - (sx & 1), sy - (sy & 1)
-    x1p, y1p = min(wc, sx + sw + ((sx + sw) & 1)), min(hc, sy + sh + ((sy + sh) & 1))
-    region = np.zeros((y1p - y0p, x1p - x0p), np.uint8)
-    region[sy - y0p: sy - y0p + sh, sx - x0p: sx - x0p + sw] = mask[sy - ry0: sy - ry0 + sh, sx - rx0: sx - rx0 + sw] == 2
-    ph, pw = region.shape[0] // 2, region.shape[1] // 2
-    if ph and pw:
-        rr = region[: 2 * ph, : 2 * pw]
-        pooled = rr[0::2, 0::2] | rr[1::2, 0::2] | rr[0::2, 1::2] | rr[1::2, 1::2]
-    else:
-        pooled = region
-    if pooled.size == 0 or not pooled.any():
-        g, x0p, y0p = 1, sx, sy  # degenerate (tiny) region: no pooling
-        pooled = region = (mask[sy - ry0:sy - ry0 + sh, sx - rx0:sx - rx0 + sw] == 2).view(np.uint8)
-    else:
-        g = 2
-    ry, rx = np.nonzero(pooled)
-    bx, by = bx + rx0, by + ry0
-    k0 = int(np.argmin(((rx + 0.5) * g + x0p - 0.5 - bx) ** 2 + ((ry + 0.5) * g + y0p - 0.5 - by) ** 2))
-    if USE_NUMBA:
-        path = bfs_path_nb(np.ascontiguousarray(pooled, dtype=np.uint8), int(ry[k0]), int(rx[k0]))
-    else:
-        path = _geodesic_path(pooled.astype(bool), (int(ry[k0]), int(rx[k0])))
+    path, g, region, x0p, y0p = _traced_path(mask, (sx, sy, sw, sh), (rx0, ry0), (hc, wc), (bx + rx0, by + ry0))
     # Out of view when the far end of the path (the robot's visible end) is at the image border. Only the
     # end counts: static edges flickering with camera jitter can join the region near the base and run to
     # the border (the actuation unit's outline, when few background frames teach the threshold), which
