@@ -40,7 +40,7 @@ Pixel coordinates follow OpenCV: (0, 0) is the centre of the top-left pixel.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -1235,6 +1235,69 @@ def _add_ridge_hits(model, frame, coeff, seeds, t, half, nav, threshold, wref, m
     pr.chord[miss] = wref / max(abs(t[0]), abs(t[1]))
 
 
+@dataclass(eq=False)
+class _Track:
+    """What :func:`_follow_tube` knows so far: the centres found, those beyond a gap still to confirm, the misses."""
+
+    recent: np.ndarray  # (<= 6, 2) last centres found (px), for the predicted axis
+    last_hit: np.ndarray  # (2,) last centre found (px)
+    max_misses: int  # a run of this many misses ends the tube
+    confirm: int  # hits beyond a gap that confirm it
+    widths: list = field(default_factory=list)  # widths found (px)
+    found: list = field(default_factory=list)  # (center, chord, axis, s, width)
+    pending: list = field(default_factory=list)  # hits after a gap, not yet confirmed
+    misses: int = 0
+
+    @property
+    def bridging(self) -> bool:
+        """Across a gap (two misses or more), or confirming what lies beyond one."""
+        return self.misses >= 2 or bool(self.pending)
+
+    @property
+    def on_tube(self) -> bool:
+        """Fewer than two misses since the last hit, or confirming what lies beyond a gap."""
+        return self.misses < 2 or bool(self.pending)
+
+    def wref(self) -> float:
+        """The width (px) found over the last centres."""
+        return float(np.median(self.widths[-6:]))
+
+    def take(self, item) -> bool:
+        """Count a hit ``(center, chord, axis, s, width)``; True when it confirms the tube beyond a gap."""
+        confirmed = False
+        if self.bridging:
+            self.pending.append(item)
+            if len(self.pending) >= self.confirm:
+                self.found.extend(self.pending)
+                self.pending = []
+                self.misses = 0
+                confirmed = True
+        else:
+            self.found.append(item)
+            self.misses = 0
+        if not self.pending:
+            self.widths.append(item[4])
+            self.last_hit = item[0].copy()
+            self.recent = np.concatenate([self.recent, item[0][None]])[-6:]
+        return confirmed
+
+    def miss(self) -> bool:
+        """Count a miss (unconfirmed hits beyond a gap become misses too); True when the run of misses ends the tube."""
+        if self.pending:
+            self.misses += len(self.pending)
+            self.pending = []
+        self.misses += 1
+        return self.misses >= self.max_misses
+
+
+def _border_error(model: ViewModel, seed: np.ndarray, half: int) -> FrameError:
+    """The error for a tube followed to within ``half`` px of the image border at ``seed`` (px)."""
+    H, W = model.shape
+    u, v = seed
+    out = [b for b, o in zip(_BORDER_NAMES, (u < half, v < half, u > W - 1 - half, v > H - 1 - half)) if o]
+    return FrameError(f"robot partly out of view (the tube runs to within {half} px of the {' and '.join(out)} image border)", model.name)
+
+
 def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step, tolerance, batch: int = 4,
                  max_gap_px: float = 0.0, confirm: int = 4, nav: int = 0, threshold1=None, strong: float = np.inf,
                  energy: bool = False, visited=None):
@@ -1274,88 +1337,57 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
     H, W = model.shape
     p, t = np.asarray(p, np.float64), _unit(np.asarray(t, np.float64))
     seen = np.zeros((0, 2)) if visited is None else np.asarray(visited, np.float64)[::2]
-    recent = p[None]
-    last_hit = p.copy()
-    widths = []
-    found = []
-    pending = []  # hits after a gap, not yet confirmed: (center, chord, axis, s, width)
-    misses = 0
-    max_misses = max(2, int(np.floor(max_gap_px / step)) + 1)
+    tr = _Track(recent=p[None], last_hit=p.copy(), max_misses=max(2, int(np.floor(max_gap_px / step)) + 1), confirm=confirm)
     grow = 1
     for _ in range(int((H + W) / (step * batch)) + 1):
-        if len(recent) >= 3:
+        if len(tr.recent) >= 3:
             # Direction of the last centres (principal axis), oriented along the previous tangent.
-            ax = np.linalg.svd(recent - recent.mean(axis=0), full_matrices=False)[2][0]
+            ax = np.linalg.svd(tr.recent - tr.recent.mean(axis=0), full_matrices=False)[2][0]
             t = _unit(ax if ax @ t > 0 else -ax)
         # While bridging a gap the prediction stays put: the rest of the gap (and the profiles that would
         # confirm a tube beyond it) in one batch.
         # On a clean run the batches grow (x2 per batch of all hits, up to 4x): a tube the coarse path lost is
         # followed for hundreds of px, ~0.1 ms of Python per batch.
-        nb = batch * grow if misses < 2 or pending else int(min(max(batch, max_misses - misses + confirm), 128))
+        nb = batch * grow if tr.on_tube else int(min(max(batch, tr.max_misses - tr.misses + confirm), 128))
         k = step * np.arange(1, nb + 1, dtype=np.float64)
         seeds = p + k[:, None] * t
         pr = edges_from_profiles(model, frame, coeff, seeds, np.broadcast_to(t, seeds.shape), s + k, half, threshold, nav, threshold1, strong)
         width = pr.chord * max(abs(t[0]), abs(t[1]))  # the slant, as in extract_view (profiles run across the larger component)
         off = (pr.centers - seeds) @ np.array([-t[1], t[0]])
-        ahead = (seeds - last_hit) @ t
-        max_off = tolerance + 0.25 * np.maximum(ahead, 0.0)
+        max_off = tolerance + 0.25 * np.maximum((seeds - tr.last_hit) @ t, 0.0)
         hit = pr.ok & (width > wmin) & (width < wmax) & (np.abs(off) < max_off)
-        if energy and widths and not hit.all():
-            _add_ridge_hits(model, frame, coeff, seeds, t, half, nav, threshold, float(np.median(widths[-6:])), max_off,
-                            last_hit, seen, pr, width, hit)
+        if energy and tr.widths and not hit.all():
+            _add_ridge_hits(model, frame, coeff, seeds, t, half, nav, threshold, tr.wref(), max_off, tr.last_hit, seen, pr, width, hit)
         s_c = s + k + (pr.centers - seeds) @ t
         stop = confirmed = False
         border = ((seeds[:, 0] < half) | (seeds[:, 1] < half) | (seeds[:, 0] > W - 1 - half) | (seeds[:, 1] > H - 1 - half)).tolist()
         hit, width_l = hit.tolist(), width.tolist()
         for i in range(nb):
-            at_border = border[i]
-            if at_border and (misses < 2 or pending):
-                u, v = seeds[i]
-                out = [b for b, o in zip(_BORDER_NAMES, (u < half, v < half, u > W - 1 - half, v > H - 1 - half)) if o]
-                raise FrameError(f"robot partly out of view (the tube runs to within {half} px of the {' and '.join(out)} image border)", model.name)
-            if at_border:
+            if border[i]:
+                if tr.on_tube:
+                    raise _border_error(model, seeds[i], half)
                 stop = True
                 break
-            if hit[i] and misses >= 2 and widths:
-                wref = float(np.median(widths[-6:]))
-                if not 0.5 * wref < width_l[i] < 1.35 * wref:
-                    hit[i] = False
+            if hit[i] and tr.misses >= 2 and tr.widths and not 0.5 * tr.wref() < width_l[i] < 1.35 * tr.wref():
+                hit[i] = False
             if hit[i]:
-                item = (pr.centers[i], pr.chord[i], pr.axis[i], s_c[i], width_l[i])
-                if misses >= 2 or pending:
-                    pending.append(item)
-                    if len(pending) >= confirm:
-                        found.extend(pending)
-                        pending = []
-                        misses = 0
-                        confirmed = True
-                else:
-                    found.append(item)
-                    misses = 0
-                if not pending:
-                    widths.append(width_l[i])
-                    last_hit = pr.centers[i].copy()
-                    recent = np.concatenate([recent, pr.centers[i][None]])[-6:]
+                confirmed = tr.take((pr.centers[i], pr.chord[i], pr.axis[i], s_c[i], width_l[i]))
                 if confirmed:
                     break  # re-predict the axis from the centres beyond the gap
-            else:
-                if pending:
-                    misses += len(pending)
-                    pending = []
-                misses += 1
-                if misses >= max_misses:
-                    stop = True
-                    break
+            elif tr.miss():
+                stop = True
+                break
         if stop:
             break
-        grow = min(4, 2 * grow) if (not confirmed and misses == 0 and all(hit)) else 1
+        grow = min(4, 2 * grow) if (not confirmed and tr.misses == 0 and all(hit)) else 1
         # Next batch from the last centre found, or along the prediction while bridging a gap.
-        if misses == 0 and found:
-            p = found[-1][0]
-            s = float(found[-1][3])
+        if tr.misses == 0 and tr.found:
+            p = tr.found[-1][0]
+            s = float(tr.found[-1][3])
         else:
             p = seeds[-1]
             s = float(s + k[-1])
+    found = tr.found
     if not found:
         return None
     # A run of misses at the end is no part of the tube.
@@ -1378,6 +1410,58 @@ def _merge_profiles(prof, s, c, ok, more):
             np.concatenate([ok, more.ok])[order])
 
 
+def _gray_frame(model: ViewModel, frame) -> np.ndarray:
+    """The frame as (H, W) uint8 gray levels (RGB converted, other dtypes clipped to 0-255).
+
+    Raises :class:`~recon.errors.FrameError` when its size is not the background model's.
+    """
+    frame = np.asarray(frame)
+    if frame.ndim == 3:
+        frame = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
+    if frame.shape != model.shape:
+        raise FrameError(f"frame is {frame.shape[1]}x{frame.shape[0]} but the background model is {model.shape[1]}x{model.shape[0]}", model.name)
+    if frame.dtype != np.uint8:
+        frame = np.clip(frame, 0, 255).astype(np.uint8)
+    return frame
+
+
+def _final_curve(name: str, fitter, s, c, ok, end_px, params) -> tuple:
+    """The robust spline through the accepted centres ``c[ok]`` and the tip ``end_px`` (px) moved onto its end tangent.
+
+    Returns ``(spline, good indices, s_end, t_end, end_px)``; raises
+    :class:`~recon.errors.FrameError` with fewer than 8 centres left.
+    """
+    if ok.sum() < 8:
+        raise FrameError(f"too few valid tube profiles ({int(ok.sum())} of {len(ok)})", name)
+    coef, ok = fitter.robust(c, ok, params.outlier_min_px, params.outlier_sigma)
+    good = np.flatnonzero(ok)
+    if good.size < 8:
+        raise FrameError(f"too few valid tube profiles ({good.size})", name)
+    spl = fitter.spline(coef)
+    s_end = float(s[good[-1]])
+    p_end = spl(s_end)
+    t_end = _unit(spl.derivative()(s_end))
+    return spl, good, s_end, t_end, p_end + float(np.dot(end_px - p_end, t_end)) * t_end
+
+
+def _edge_limits(model: ViewModel, params) -> tuple:
+    """The edge search's limits for a view: ``(rmax, nav, thr, thr_px, wmin, wmax, strong)``.
+
+    ``rmax`` the largest tube radius (px); ``nav`` the parallel lines a
+    profile averages on each side; ``thr`` the edge threshold of an averaged
+    profile and ``thr_px`` of one line (gray levels); ``wmin``, ``wmax`` the
+    accepted tube widths (px); ``strong`` the rim contrast (gray levels) above
+    which a single line's edges are taken as they are.
+    """
+    rmax = model.outer_radius_px * params.max_width_fraction
+    nav = int(getattr(params, "profile_half_lines", 0))
+    thr = max(params.edge_threshold_sigma * model.sigma_fine / np.sqrt(2 * nav + 1), params.edge_min_dn)
+    thr_px = max(params.edge_threshold_sigma * model.sigma_fine, params.edge_min_dn)  # one line, no averaging: the tip
+    wmin = 2.0 * model.inner_radius_px * params.min_width_fraction
+    strong = float(getattr(params, "single_line_rim_factor", np.inf)) * thr_px
+    return rmax, nav, thr, thr_px, wmin, 2.0 * rmax, strong
+
+
 def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings: dict | None = None) -> ViewCenterline:
     """Coarse path, fine profiles, spline, tip: the sub-pixel centerline of one view.
 
@@ -1392,30 +1476,18 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
         From :func:`coarse_path`, or too few valid profiles.
     """
     lap = _Lap(timings)
-    frame = np.asarray(frame)
-    if frame.ndim == 3:
-        frame = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
-    if frame.shape != model.shape:
-        raise FrameError(f"frame is {frame.shape[1]}x{frame.shape[0]} but the background model is {model.shape[1]}x{model.shape[0]}", model.name)
-    if frame.dtype != np.uint8:
-        frame = np.clip(frame, 0, 255).astype(np.uint8)
+    frame = _gray_frame(model, frame)
     coarse = coarse_path(model, frame, roi, base_search_px=params.base_search_px)
     lap("coarse")
     f = model.factor
     if len(coarse.path_px) < 3:
         raise FrameError(f"robot too short in the image (~{len(coarse.path_px) * 2 * f} px)", model.name)
     coeff = coarse.coefficients
-    rmax = model.outer_radius_px * params.max_width_fraction
-    nav = int(getattr(params, "profile_half_lines", 0))
-    thr = max(params.edge_threshold_sigma * model.sigma_fine / np.sqrt(2 * nav + 1), params.edge_min_dn)
-    thr_px = max(params.edge_threshold_sigma * model.sigma_fine, params.edge_min_dn)  # one line, no averaging: the tip
-    wmin = 2.0 * model.inner_radius_px * params.min_width_fraction
-    wmax = 2.0 * rmax
+    rmax, nav, thr, thr_px, wmin, wmax, strong = _edge_limits(model, params)
     # Profiles along the coarse path, wide enough for its error (about a pooled cell).
     seeds, s = _resample(_smooth_path(coarse.path_px, 3), params.profile_step_px)
     tang = _tangents(seeds)
     half = int(np.ceil(rmax * 1.45 + 1.5 * f + 2))
-    strong = float(getattr(params, "single_line_rim_factor", np.inf)) * thr_px
     prof = edges_from_profiles(model, frame, coeff, seeds, tang, s, half, thr, nav, thr_px, strong)
     lap("profiles")
     s, c, ok = _reparameterize(prof, seeds, tang)
@@ -1429,10 +1501,9 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
     lap("fit")
     # The coarse path can stop short of the tip (a tube only a coarse pixel or two wide can drop out of the
     # coarse mask): follow the tube's edges at full resolution beyond the last accepted centre.
-    half_f = int(np.ceil(rmax * 1.45 + 4))
-    follow = dict(half=half_f, threshold=thr, wmin=wmin, wmax=wmax, step=params.profile_step_px, tolerance=model.inner_radius_px,
-                  max_gap_px=2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0), nav=nav,
-                  threshold1=thr_px, strong=strong, energy=bool(getattr(params, "follow_energy", False)), visited=c[good])
+    follow = dict(half=int(np.ceil(rmax * 1.45 + 4)), threshold=thr, wmin=wmin, wmax=wmax, step=params.profile_step_px,
+                  tolerance=model.inner_radius_px, max_gap_px=2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0),
+                  nav=nav, threshold1=thr_px, strong=strong, energy=bool(getattr(params, "follow_energy", False)), visited=c[good])
     sb, p_end, t_end, r_end = _end_of(fitter, coef, s, good, d, width)
     start = (p_end, t_end, sb)
     for round_ in range(_MAX_FOLLOWS):
@@ -1459,20 +1530,9 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
         start = (p_end + end_t * t_end, t_end, sb + end_t)
     if not np.isfinite(end_t):
         end_t = 0.0
-    end_px = p_end + end_t * t_end
     # Profiles within about a radius of the silhouette's end are cut by the end cap.
     ok &= s <= sb + end_t - 1.2 * r_end - 1.0
-    if ok.sum() < 8:
-        raise FrameError(f"too few valid tube profiles ({int(ok.sum())} of {len(ok)})", model.name)
-    coef, ok = fitter.robust(c, ok, params.outlier_min_px, params.outlier_sigma)
-    good = np.flatnonzero(ok)
-    if good.size < 8:
-        raise FrameError(f"too few valid tube profiles ({good.size})", model.name)
-    spl = fitter.spline(coef)
-    s_end = float(s[good[-1]])
-    p_end = spl(s_end)
-    t_end = _unit(spl.derivative()(s_end))
-    end_px = p_end + float(np.dot(end_px - p_end, t_end)) * t_end
+    spl, good, s_end, t_end, end_px = _final_curve(model.name, fitter, s, c, ok, p_end + end_t * t_end, params)
     lap("fit")
     # Outside border check at full resolution: the tip must not be at the border.
     H, W = model.shape
