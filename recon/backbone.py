@@ -361,6 +361,81 @@ def _bridge_pieces(centres, comp, n_comp, counts, cell, params, bridge_check=Non
     return np.array(bridges, np.int64).reshape(-1, 2), main
 
 
+def _cells(vox: np.ndarray, cell: float) -> tuple:
+    """Voxels (n, 3) mm pooled into cubic cells of edge ``cell`` (mm, the largest voxel edge).
+
+    Returns ``(keys, of_voxel, counts, sums, centres)``: cell indices (m, 3),
+    each voxel's cell (n,), voxels per cell (m,), their coordinate sums and
+    means (m, 3) mm.
+    """
+    # +0.5: voxel centres on the coarsest axis sit exactly on cell centres, not on edges.
+    grid = np.floor((vox - vox.min(axis=0)) / cell + 0.5).astype(np.int64)
+    # One integer per cell (a 1-D unique is several times faster than a row-wise one).
+    dims = grid.max(axis=0) + 1
+    flat, of_voxel, counts = np.unique(np.ravel_multi_index(grid.T, dims), return_inverse=True, return_counts=True)
+    keys = np.stack(np.unravel_index(flat, dims), axis=1)
+    of_voxel = of_voxel.reshape(-1)
+    sums = np.zeros((keys.shape[0], 3))
+    np.add.at(sums, of_voxel, vox)
+    return keys, of_voxel, counts, sums, sums / counts[:, None]
+
+
+def _cell_graph(keys, centres, counts, cell: float, params: BackboneParams, bridge_check) -> tuple:
+    """The main piece's cell graph, weighted by the distance between cell means (mm), and the (m,) mask of its cells.
+
+    Links between neighbouring cells, plus bridges over the gaps between
+    pieces (:func:`_bridge_pieces`).
+    """
+    pairs = cKDTree(keys).query_pairs(params.neighbour_radius_voxels, output_type="ndarray")
+    m = keys.shape[0]
+    n_comp, comp = connected_components(
+        coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m)), directed=False
+    )
+    bridges, main = _bridge_pieces(centres, comp, n_comp, counts, cell, params, bridge_check)
+    if bridges.size:
+        pairs = np.concatenate([pairs, bridges])
+    w = np.linalg.norm(centres[pairs[:, 0]] - centres[pairs[:, 1]], axis=1)
+    graph = coo_matrix((np.maximum(w, 1e-9), (pairs[:, 0], pairs[:, 1])), shape=(m, m)).tocsr()
+    return graph[main][:, main], main
+
+
+def _distance_from_base(graph, centres, base, axis, cell: float) -> np.ndarray:
+    """Each cell's geodesic distance (mm) from the base end of the graph.
+
+    Ends by a double sweep: the cell farthest from any cell is one end, the
+    cell farthest from that end is the other. The base end is the one nearer
+    ``base`` (mm), or, within a cell of a tie, the one further back along ``axis``.
+    """
+    d0 = dijkstra(graph, directed=False, indices=0)
+    end_a = int(np.argmax(d0))
+    d_a = dijkstra(graph, directed=False, indices=end_a)
+    end_b = int(np.argmax(d_a))
+    dist_a, dist_b = (float(np.linalg.norm(centres[e] - base)) for e in (end_a, end_b))
+    if abs(dist_a - dist_b) > cell:
+        base_is_a = dist_a < dist_b
+    else:
+        base_is_a = float((centres[end_a] - centres[end_b]) @ axis) <= 0.0
+    return d_a if base_is_a else dijkstra(graph, directed=False, indices=end_b)
+
+
+def _binned_curve(g_cell, centres, sums, counts, cell: float, params: BackboneParams) -> tuple:
+    """The curve (k, 3) mm through the means of geodesic bins, refined by projecting the cells onto it,
+    and each cell's arc length (mm) along it."""
+    width = params.bin_voxels * cell
+    means = _bin_means(g_cell, sums, counts, width)
+    pts = _smooth(means[:, :3], int(params.smooth_passes))
+    # Geodesic distance overestimates arc length (grid paths zigzag); map it
+    # through the bins' own (mean geodesic, arc length) pairs.
+    s_cell = np.interp(g_cell, means[:, 3], arc_length(pts))
+    for _ in range(int(params.refine_passes)):
+        s_cell = _project_cells(centres, pts, s_cell, 3.0 * cell)
+        means = _bin_means(s_cell, sums, counts, width)
+        means = _fit_ends(means, int(params.end_fit_bins))
+        pts = _smooth(means[:, :3], int(params.smooth_passes))
+        s_cell = np.interp(s_cell, means[:, 3], arc_length(pts))
+    return pts, s_cell
+
+
 def order_backbone(
     voxels_mm,
     labels,
@@ -412,65 +487,17 @@ def order_backbone(
     axis = np.asarray(insertion_axis_world, dtype=np.float64).reshape(3)
     axis = axis / np.linalg.norm(axis)
 
-    # Cells of the largest voxel edge; each holds the sum and count of its voxels.
     cell = float(size.max())
-    # +0.5: voxel centres on the coarsest axis sit exactly on cell centres, not on edges.
-    grid = np.floor((vox - vox.min(axis=0)) / cell + 0.5).astype(np.int64)
-    # One integer per cell (a 1-D unique is several times faster than a row-wise one).
-    dims = grid.max(axis=0) + 1
-    flat, of_voxel, counts = np.unique(np.ravel_multi_index(grid.T, dims), return_inverse=True, return_counts=True)
-    keys = np.stack(np.unravel_index(flat, dims), axis=1)
-    of_voxel = of_voxel.reshape(-1)
-    sums = np.zeros((keys.shape[0], 3))
-    np.add.at(sums, of_voxel, vox)
-    centres = sums / counts[:, None]
-
-    # Cell graph, weighted by the distance between cell means (mm): links
-    # between neighbouring cells, plus bridges over the gaps between pieces.
-    pairs = cKDTree(keys).query_pairs(params.neighbour_radius_voxels, output_type="ndarray")
-    m = keys.shape[0]
-    n_comp, comp = connected_components(
-        coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(m, m)), directed=False
-    )
-    bridges, main = _bridge_pieces(centres, comp, n_comp, counts, cell, params, bridge_check)
-    if bridges.size:
-        pairs = np.concatenate([pairs, bridges])
-    w = np.linalg.norm(centres[pairs[:, 0]] - centres[pairs[:, 1]], axis=1)
-    graph = coo_matrix((np.maximum(w, 1e-9), (pairs[:, 0], pairs[:, 1])), shape=(m, m)).tocsr()
-    graph = graph[main][:, main]
+    keys, of_voxel, counts, sums, centres = _cells(vox, cell)
+    graph, main = _cell_graph(keys, centres, counts, cell, params, bridge_check)
     in_main = main[of_voxel]
     n_dropped = int(np.count_nonzero(~in_main))
     # Re-index voxels to the kept cells.
     of_voxel = (np.cumsum(main) - 1)[of_voxel[in_main]]
     vox, lab = vox[in_main], lab[in_main]
     sums, counts, centres = sums[main], counts[main], centres[main]
-
-    # Ends by a double sweep: the cell farthest from any cell is one end, the
-    # cell farthest from that end is the other.
-    d0 = dijkstra(graph, directed=False, indices=0)
-    end_a = int(np.argmax(d0))
-    d_a = dijkstra(graph, directed=False, indices=end_a)
-    end_b = int(np.argmax(d_a))
-    dist_a, dist_b = (float(np.linalg.norm(centres[e] - base)) for e in (end_a, end_b))
-    if abs(dist_a - dist_b) > cell:
-        base_is_a = dist_a < dist_b
-    else:
-        base_is_a = float((centres[end_a] - centres[end_b]) @ axis) <= 0.0
-    g_cell = d_a if base_is_a else dijkstra(graph, directed=False, indices=end_b)
-
-    # One point per geodesic bin: the mean of its voxels.
-    width = params.bin_voxels * cell
-    means = _bin_means(g_cell, sums, counts, width)
-    pts = _smooth(means[:, :3], int(params.smooth_passes))
-    # Geodesic distance overestimates arc length (grid paths zigzag); map it
-    # through the bins' own (mean geodesic, arc length) pairs.
-    s_cell = np.interp(g_cell, means[:, 3], arc_length(pts))
-    for _ in range(int(params.refine_passes)):
-        s_cell = _project_cells(centres, pts, s_cell, 3.0 * cell)
-        means = _bin_means(s_cell, sums, counts, width)
-        means = _fit_ends(means, int(params.end_fit_bins))
-        pts = _smooth(means[:, :3], int(params.smooth_passes))
-        s_cell = np.interp(s_cell, means[:, 3], arc_length(pts))
+    g_cell = _distance_from_base(graph, centres, base, axis, cell)
+    pts, s_cell = _binned_curve(g_cell, centres, sums, counts, cell, params)
     points = resample_polyline(pts, params.step_mm)
     length = float(arc_length(points)[-1])
 
