@@ -39,7 +39,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .camera import Camera, invert_transform
+from .camera import Camera, distort_normalized, invert_transform
 from .rigcal import RigCalibration
 
 __all__ = [
@@ -1052,35 +1052,71 @@ def _rodrigues_batch(r: np.ndarray) -> np.ndarray:
     return R
 
 
-def refine_jointly(cams: dict, observations: list, T_side_top: np.ndarray, board: BoardSpec, models: dict | None = None) -> dict:
-    """One least-squares adjustment of both cameras' intrinsics, every board pose and ``T_side_top``.
+@dataclass(frozen=True, eq=False)
+class _JointProblem:
+    """:func:`refine_jointly`'s parameter vector and observed corners, flattened for vectorised residuals.
+
+    Attributes
+    ----------
+    x0 : (24 + 6 F,) array
+        Starting parameters ``[side intrinsics 9][top intrinsics 9][T_side_top 6][board poses 6 F]``: intrinsics
+        are fx fy cx cy (px) then k1 k2 p1 p2 k3; a transform is a rotation vector (rad) then a translation (mm).
+    free : (24 + 6 F,) bool array
+        The parameters adjusted (distortion terms outside a camera's model stay at their start).
+    frames : list of str
+        The F placements, in the order of their poses (``T_ref_board``) in ``x0``.
+    fidx, cidx : (m,) int arrays
+        Placement and camera (0 side, 1 top) of each observed corner.
+    via : (m,) bool array
+        Whether the corner is seen through ``T_side_top`` (side camera, pose in the top camera's frame).
+    uv : (m, 2) array
+        Observed corners (px).
+    P : (m, 3) array
+        The same corners in the board frame (mm).
+    """
+
+    x0: np.ndarray
+    free: np.ndarray
+    frames: list
+    fidx: np.ndarray
+    cidx: np.ndarray
+    via: np.ndarray
+    uv: np.ndarray
+    P: np.ndarray
+
+    def residual(self, xf: np.ndarray) -> np.ndarray:
+        """Reprojection residuals (2 m,) px, every corner's u then every corner's v, at the free parameters ``xf``."""
+        x = self.x0.copy()
+        x[self.free] = xf
+        intr = x[:18].reshape(2, 9)
+        R_st = _rodrigues_batch(x[18:21][None])[0]
+        t_st = x[21:24]
+        poses = x[24:].reshape(len(self.frames), 6)
+        R = _rodrigues_batch(poses[:, :3])
+        X = np.einsum("nij,nj->ni", R[self.fidx], self.P) + poses[self.fidx, 3:]  # board -> the pose's camera (mm)
+        Xs = X @ R_st.T + t_st  # top camera -> side camera (mm)
+        X = np.where(self.via[:, None], Xs, X)
+        xy = X[:, :2] / X[:, 2:3]
+        ip = intr[self.cidx]
+        fx, fy, cx, cy = ip.T[:4]
+        xd, yd = distort_normalized(xy, ip.T[4:]).T  # each corner with its own camera's k1 k2 p1 p2 k3
+        return np.concatenate([fx * xd + cx - self.uv[:, 0], fy * yd + cy - self.uv[:, 1]])
+
+
+def _joint_problem(cams: dict, observations: list, T_side_top: np.ndarray, board: BoardSpec,
+                   models: dict | None) -> _JointProblem:
+    """Lay out :func:`refine_jointly`'s parameters (start, which are free) and its observed corners.
 
     Parameters
     ----------
-    cams : dict name -> (K, dist)
-        Starting intrinsics of ``"side"`` and ``"top"``.
-    observations : list of dict
-        Each board placement: ``{"frame": str, "ref": camera the pose is in, "T_ref_board": 4x4,
-        "views": [(camera, corners (n, 2)), ...]}``; a placement may be seen several times
-        (exposures of a board that did not move). A placement seen by both cameras has its
-        pose in the top camera and is seen by the side camera through ``T_side_top``.
-    T_side_top : (4, 4) array
-    board : BoardSpec
-    models : dict name -> str, optional
-        Each camera's estimated distortion terms (:data:`DISTORTION_MODELS`); the others
-        stay at their starting value. Default: all five.
+    cams, observations, T_side_top, board, models
+        As :func:`refine_jointly`'s: K (px), 4x4 ``T_side_top`` and ``T_ref_board`` (mm), corners (px).
 
-    Returns
-    -------
-    dict with ``cams`` (name -> (K, dist)), ``std`` (name -> {param: std}), ``T_side_top``,
-    ``poses`` (frame -> T_ref_board) and ``errors`` (frame -> list of per-corner errors (px), one per view).
+    Raises ``ValueError`` when a placement seen by the side camera through ``T_side_top`` is posed in the side camera.
     """
-
     names = list(CAMERAS)
     obj = board.object_points()
     n = len(obj)
-    frames = [o["frame"] for o in observations]
-    F = len(frames)
     # parameter layout: [side intr 9][top intr 9][T_side_top 6][frame poses 6F]
     x0 = []
     for nm in names:
@@ -1113,45 +1149,30 @@ def refine_jointly(cams: dict, observations: list, T_side_top: np.ndarray, board
     P = np.tile(obj, (len(uv) // n, 1))
     if np.any(via & (cidx != 0)):
         raise ValueError("joint refinement: a placement seen by both cameras must have its pose in the top camera")
+    return _JointProblem(x0=x0, free=free, frames=[o["frame"] for o in observations], fidx=fidx, cidx=cidx, via=via, uv=uv, P=P)
 
-    def residual(xf):
-        x = x0.copy()
-        x[free] = xf
-        intr = x[:18].reshape(2, 9)
-        R_st = _rodrigues_batch(x[18:21][None])[0]
-        t_st = x[21:24]
-        poses = x[24:].reshape(F, 6)
-        R = _rodrigues_batch(poses[:, :3])
-        X = np.einsum("nij,nj->ni", R[fidx], P) + poses[fidx, 3:]
-        Xs = X @ R_st.T + t_st
-        X = np.where(via[:, None], Xs, X)
-        xy = X[:, :2] / X[:, 2:3]
-        ip = intr[cidx]
-        fx, fy, cx, cy, k1, k2, p1, p2, k3 = ip.T
-        x_, y_ = xy[:, 0], xy[:, 1]
-        r2 = x_ * x_ + y_ * y_
-        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x_ * radial + 2 * p1 * x_ * y_ + p2 * (r2 + 2 * x_ * x_)
-        yd = y_ * radial + p1 * (r2 + 2 * y_ * y_) + 2 * p2 * x_ * y_
-        return np.concatenate([fx * xd + cx - uv[:, 0], fy * yd + cy - uv[:, 1]])
 
-    # Jacobian by forward differences, exploiting the structure: each corner depends on its
-    # camera's intrinsics, one frame pose, and T_side_top when seen through it. The k-th
-    # parameter of every frame is perturbed at once (6 evaluations for all poses), plus one
-    # evaluation per intrinsic and per T_side_top parameter; J is kept sparse and the
-    # Levenberg-Marquardt steps solve the small normal equations densely.
+def _joint_jacobian(pb: _JointProblem):
+    """``jac(xf, f0)``: the sparse (2 m, free parameters) Jacobian of ``pb.residual`` (px per parameter unit)
+    at ``xf``, by forward differences from the residuals ``f0`` there.
+
+    Each corner depends on its camera's intrinsics, one placement's pose, and ``T_side_top`` when seen
+    through it, so the k-th parameter of every pose is perturbed at once (6 evaluations for all poses),
+    plus one evaluation per free intrinsic and ``T_side_top`` parameter.
+    """
     from scipy.sparse import coo_matrix  # noqa: PLC0415
 
-    m = len(uv)
+    residual, free, F = pb.residual, pb.free, len(pb.frames)
+    m = len(pb.uv)
     nf = int(free.sum())
-    full_to_free = -np.ones(len(x0), int)
+    full_to_free = -np.ones(len(pb.x0), int)
     full_to_free[free] = np.arange(nf)
     both = lambda rows: np.concatenate([rows, rows + m])  # noqa: E731
-    frame_rows = [both(np.flatnonzero(fidx == f)) for f in range(F)]
+    frame_rows = [both(np.flatnonzero(pb.fidx == f)) for f in range(F)]
     single_rows = {}
     for j in range(24):
         if free[j]:
-            single_rows[j] = both(np.flatnonzero(cidx == j // 9)) if j < 18 else both(np.flatnonzero(via))
+            single_rows[j] = both(np.flatnonzero(pb.cidx == j // 9)) if j < 18 else both(np.flatnonzero(pb.via))
 
     def jac(xf, f0):
         ri, ci, vals = [], [], []
@@ -1176,7 +1197,18 @@ def refine_jointly(cams: dict, observations: list, T_side_top: np.ndarray, board
                 vals.append(d[rows] / h[f])
         return coo_matrix((np.concatenate(vals), (np.concatenate(ri), np.concatenate(ci))), shape=(2 * m, nf)).tocsr()
 
-    xf = x0[free].copy()
+    return jac
+
+
+def _levenberg_marquardt(residual, jac, xf: np.ndarray) -> tuple:
+    """Minimise ``|residual(x)|²`` from ``xf``: at most 100 Levenberg-Marquardt steps, damped by diag(JᵀJ).
+
+    J stays sparse; the normal equations are small and solved densely.
+
+    Returns
+    -------
+    (x, residuals (px), cost = |residuals|² (px²), JᵀJ of the last linearisation or None)
+    """
     res = residual(xf)
     cost = float(res @ res)
     lam = 1e-4
@@ -1204,16 +1236,35 @@ def refine_jointly(cams: dict, observations: list, T_side_top: np.ndarray, board
             lam *= 10
         if not improved or small:
             break
-    x = x0.copy()
-    x[free] = xf
-    dof = max(len(res) - nf, 1)
+    return xf, res, cost, A
+
+
+def _joint_std(pb: _JointProblem, A: np.ndarray | None, cost: float, n_res: int) -> np.ndarray:
+    """Standard deviation of every parameter of ``pb.x0`` (its units: px, rad, mm) from ``inv(JᵀJ)`` times the
+    residual variance (``cost`` px² over the degrees of freedom); NaN for the fixed ones, or all when JᵀJ is singular."""
+    nf = int(pb.free.sum())
+    dof = max(n_res - nf, 1)
     sigma2 = cost / dof
-    std_full = np.full(len(x0), np.nan)
+    std_full = np.full(len(pb.x0), np.nan)
     if A is not None:
         try:
-            std_full[free] = np.sqrt(np.clip(np.diag(np.linalg.inv(A)) * sigma2, 0, None))
+            std_full[pb.free] = np.sqrt(np.clip(np.diag(np.linalg.inv(A)) * sigma2, 0, None))
         except np.linalg.LinAlgError:
             pass
+    return std_full
+
+
+def _joint_solution(pb: _JointProblem, observations: list, xf: np.ndarray, res: np.ndarray, cost: float,
+                    std_full: np.ndarray, n: int) -> dict:
+    """:func:`refine_jointly`'s result from the solved free parameters ``xf``, the residuals ``res`` (px), their
+    ``cost`` (px²) and ``std_full`` (:func:`_joint_std`); ``n`` corners per view.
+
+    K (px), ``T_side_top`` and the poses ``T_ref_board`` as 4x4 (mm); per-corner errors (px) split per view.
+    """
+    names = list(CAMERAS)
+    free = pb.free
+    x = pb.x0.copy()
+    x[free] = xf
     out_cams, std = {}, {}
     for i, nm in enumerate(names):
         p = x[9 * i : 9 * i + 9]
@@ -1221,7 +1272,8 @@ def refine_jointly(cams: dict, observations: list, T_side_top: np.ndarray, board
         out_cams[nm] = (K, p[4:9].copy())
         std[nm] = {k: float(v) for k, v, f in zip(_INTR, std_full[9 * i : 9 * i + 9], free[9 * i : 9 * i + 9]) if f}
     T_st = _pose(x[18:21], x[21:24])
-    poses = {f: _pose(x[24 + 6 * i : 27 + 6 * i], x[27 + 6 * i : 30 + 6 * i]) for i, f in enumerate(frames)}
+    poses = {f: _pose(x[24 + 6 * i : 27 + 6 * i], x[27 + 6 * i : 30 + 6 * i]) for i, f in enumerate(pb.frames)}
+    m = len(pb.uv)
     err = np.hypot(res[:m], res[m:])
     errors = {}
     start = 0
@@ -1232,6 +1284,34 @@ def refine_jointly(cams: dict, observations: list, T_side_top: np.ndarray, board
             start += n
     return {"cams": out_cams, "std": std, "T_side_top": T_st, "poses": poses, "errors": errors, "cost": 0.5 * cost,
             "std_T_side_top": std_full[18:24].copy()}
+
+
+def refine_jointly(cams: dict, observations: list, T_side_top: np.ndarray, board: BoardSpec, models: dict | None = None) -> dict:
+    """One least-squares adjustment of both cameras' intrinsics, every board pose and ``T_side_top``.
+
+    Parameters
+    ----------
+    cams : dict name -> (K, dist)
+        Starting intrinsics of ``"side"`` and ``"top"``.
+    observations : list of dict
+        Each board placement: ``{"frame": str, "ref": camera the pose is in, "T_ref_board": 4x4,
+        "views": [(camera, corners (n, 2)), ...]}``; a placement may be seen several times
+        (exposures of a board that did not move). A placement seen by both cameras has its
+        pose in the top camera and is seen by the side camera through ``T_side_top``.
+    T_side_top : (4, 4) array
+    board : BoardSpec
+    models : dict name -> str, optional
+        Each camera's estimated distortion terms (:data:`DISTORTION_MODELS`); the others
+        stay at their starting value. Default: all five.
+
+    Returns
+    -------
+    dict with ``cams`` (name -> (K, dist)), ``std`` (name -> {param: std}), ``T_side_top``,
+    ``poses`` (frame -> T_ref_board) and ``errors`` (frame -> list of per-corner errors (px), one per view).
+    """
+    pb = _joint_problem(cams, observations, T_side_top, board, models)
+    xf, res, cost, A = _levenberg_marquardt(pb.residual, _joint_jacobian(pb), pb.x0[pb.free].copy())
+    return _joint_solution(pb, observations, xf, res, cost, _joint_std(pb, A, cost, len(res)), board.n_corners)
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -1339,6 +1419,145 @@ def _pair_of(view_name: str) -> str:
     return view_name.split("/", 2)[2]
 
 
+def _require_rig_images(images: CalibrationImages) -> None:
+    """Raise ``ValueError`` naming ``images.source`` when a role :func:`calibrate_rig` needs has no images."""
+    for cam in CAMERAS:
+        if not images.views.get(cam):
+            raise ValueError(f"{images.source}: no images of the {cam} camera")
+    if "top" not in images.world:
+        raise ValueError(f"{images.source}: no world-frame image from the top camera")
+    if not images.stereo:
+        raise ValueError(f"{images.source}: no stereo pairs")
+
+
+def _detect_rig(images: CalibrationImages, board: BoardSpec, params: CalibrationParams, progress=None) -> dict:
+    """The board in every image of ``images``: image name (``side/...``, ``stereo/top/...``, ``world/...``) -> :class:`Detection`.
+
+    Each camera's own views go first, with the fast detectors, so that a wrong ``--board`` shows at once
+    (``ValueError``, with the size found instead); then the stereo and world images; then the slower
+    detectors where the fast ones missed a view.
+    """
+    rest = [(f"stereo/{cam}/{name}", pair[cam]) for name, pair in images.stereo for cam in CAMERAS]
+    rest += [(n, im) for cam in CAMERAS for n, im in images.world.get(cam, [])]
+    total = sum(len(images.views[c]) for c in CAMERAS) + len(rest)
+    found = {}
+    for cam in CAMERAS:
+        items = images.views[cam]
+        for d in detect_images(items, board, params, progress, done=len(found), total=total, quick=True):
+            found[d.name] = d
+        if not any(found[n].found for n, _ in items):
+            raise _no_board_error(board, cam, items, params)
+    for d in detect_images(rest, board, params, progress, done=len(found), total=total):
+        found[d.name] = d
+    missed = [(n, im) for cam in CAMERAS for n, im in images.views[cam] if not found[n].found]
+    for d in detect_images(missed, board, params):
+        found[d.name] = d
+    return found
+
+
+def _rig_intrinsics(images: CalibrationImages, found: dict, board: BoardSpec, params: CalibrationParams, progress=None) -> dict:
+    """Each camera's intrinsics (K px, k1 k2 p1 p2 k3) from its views and, with ``params.intrinsics_from_stereo``,
+    its stereo images: camera name -> :class:`CameraCalibration` (poses ``T_cam_board``, mm)."""
+    per_cam = {}
+    for cam in CAMERAS:
+        dets = [found[n] for n, _ in images.views[cam]]
+        if params.intrinsics_from_stereo:
+            dets += [found[f"stereo/{cam}/{name}"] for name, _ in images.stereo]
+        per_cam[cam] = calibrate_camera(dets, board, cam, params)
+        if progress is not None:
+            progress("intrinsics", CAMERAS.index(cam) + 1, len(CAMERAS))
+    return per_cam
+
+
+def _joint_observations(per_cam: dict, stereo: StereoCalibration, pairs: list, world: WorldFrame, world_dets: list,
+                        found: dict) -> tuple:
+    """The board placements for :func:`refine_jointly` and the names of the stereo pairs used.
+
+    A used single view is a placement posed in its own camera (``T_cam_board``, mm); a used pair one posed in
+    the top camera (``T_top_board``) and seen by the side camera through ``T_side_top``; the world board one
+    more, posed in the top camera and seen once per exposure. Corners in px.
+    """
+    obs = []
+    used_pairs = {v.name for v in stereo.used}
+    for cam in CAMERAS:
+        for name, T in per_cam[cam].poses.items():
+            # A stereo view whose pair is not used (the board found in this camera only) is one more
+            # view of this camera's intrinsics.
+            if not name.startswith("stereo/") or _pair_of(name) not in used_pairs:
+                obs.append({"frame": name, "ref": cam, "T_ref_board": T, "views": [(cam, found[name].corners)]})
+    for name, ds, dt in pairs:
+        if name in used_pairs:
+            T_top_board = per_cam["top"].poses.get(dt.name)
+            if T_top_board is None:
+                # no top-camera pose for this view: T_top_board = T_top_side @ T_side_board
+                T_top_board = invert_transform(stereo.T_side_top) @ per_cam["side"].poses[ds.name]
+            obs.append({"frame": f"stereo/{name}", "ref": "top", "T_ref_board": T_top_board,
+                        "views": [("side", ds.corners), ("top", dt.corners)]})
+    obs.append({"frame": "world", "ref": "top", "T_ref_board": world.T_top_board,
+                "views": [("top", d.corners) for d in world_dets]})
+    return obs, used_pairs
+
+
+def _refined_cameras(per_cam: dict, sol: dict, used_pairs: set) -> dict:
+    """Each camera's calibration with :func:`refine_jointly`'s solution ``sol``: its K (px), distortion, std and
+    per-view errors (px, obliquity from the refined ``T_cam_board``); rejected views stay as they were."""
+    T_side_top = sol["T_side_top"]
+    cameras = {}
+    for cam in CAMERAS:
+        K, D = sol["cams"][cam]
+        errs, recs = [], []
+        for v in per_cam[cam].views:
+            if not v.used:
+                recs.append(v)
+                continue
+            if v.name.startswith("stereo/") and _pair_of(v.name) in used_pairs:
+                frame = f"stereo/{_pair_of(v.name)}"
+                e = sol["errors"][frame][CAMERAS.index(cam)]
+                # a pair's pose is T_top_board: the side camera sees it through T_side_top
+                T = sol["poses"][frame] if cam == "top" else T_side_top @ sol["poses"][frame]
+            else:
+                e = sol["errors"][v.name][0]
+                T = sol["poses"][v.name]
+            errs.append(e)
+            recs.append(replace(v, rms_px=_rms(e), max_px=float(e.max()), oblique_deg=_oblique_deg(T)))
+        cameras[cam] = replace(per_cam[cam], K=K, dist=D, rms_px=_rms(np.concatenate(errs)), views=recs, std=sol["std"][cam])
+    return cameras
+
+
+def _refined_stereo(stereo: StereoCalibration, sol: dict) -> StereoCalibration:
+    """The stereo calibration with :func:`refine_jointly`'s ``T_side_top`` (4x4, mm) and the used pairs' errors (px)."""
+    s_errs, s_recs = [], []
+    for v in stereo.pairs:
+        if v.used:
+            e = np.concatenate(sol["errors"][f"stereo/{v.name}"])
+            s_errs.append(e)
+            v = replace(v, rms_px=_rms(e), max_px=float(e.max()))
+        s_recs.append(v)
+    return StereoCalibration(T_side_top=sol["T_side_top"], rms_px=_rms(np.concatenate(s_errs)), pairs=s_recs)
+
+
+def _refined_world(world: WorldFrame, sol: dict) -> WorldFrame:
+    """The world frame with :func:`refine_jointly`'s ``T_top_board`` (4x4, mm), hence ``T_top_world``, and its errors (px)."""
+    e = np.concatenate(sol["errors"]["world"])
+    T_top_board = sol["poses"]["world"]
+    return replace(world, T_top_board=T_top_board, T_top_world=T_top_board @ _board_to_world(world.world_origin_mm),
+                   rms_px=_rms(e), view=replace(world.view, rms_px=_rms(e), max_px=float(e.max())))
+
+
+def _refine_rig(per_cam: dict, stereo: StereoCalibration, world: WorldFrame, pairs: list, world_dets: list, found: dict,
+                board: BoardSpec) -> tuple:
+    """The joint refinement of the whole rig, started from the OpenCV stages' results.
+
+    Returns
+    -------
+    (cameras: name -> CameraCalibration, StereoCalibration, WorldFrame), all with the refined figures.
+    """
+    obs, used_pairs = _joint_observations(per_cam, stereo, pairs, world, world_dets, found)
+    sol = refine_jointly({c: (per_cam[c].K, per_cam[c].dist) for c in CAMERAS}, obs, stereo.T_side_top, board,
+                         {c: per_cam[c].model for c in CAMERAS})
+    return _refined_cameras(per_cam, sol, used_pairs), _refined_stereo(stereo, sol), _refined_world(world, sol)
+
+
 def calibrate_rig(
     images: CalibrationImages,
     board: BoardSpec,
@@ -1373,39 +1592,9 @@ def calibrate_rig(
     (RigCalibration, CalibrationReport)
     """
     params = params or CalibrationParams()
-    for cam in CAMERAS:
-        if not images.views.get(cam):
-            raise ValueError(f"{images.source}: no images of the {cam} camera")
-    if "top" not in images.world:
-        raise ValueError(f"{images.source}: no world-frame image from the top camera")
-    if not images.stereo:
-        raise ValueError(f"{images.source}: no stereo pairs")
-    # ---- detection: each camera's own views first, with the fast detectors (a wrong --board
-    # shows there at once), then the slower ones where those missed
-    rest = [(f"stereo/{cam}/{name}", pair[cam]) for name, pair in images.stereo for cam in CAMERAS]
-    rest += [(n, im) for cam in CAMERAS for n, im in images.world.get(cam, [])]
-    total = sum(len(images.views[c]) for c in CAMERAS) + len(rest)
-    found = {}
-    for cam in CAMERAS:
-        items = images.views[cam]
-        for d in detect_images(items, board, params, progress, done=len(found), total=total, quick=True):
-            found[d.name] = d
-        if not any(found[n].found for n, _ in items):
-            raise _no_board_error(board, cam, items, params)
-    for d in detect_images(rest, board, params, progress, done=len(found), total=total):
-        found[d.name] = d
-    missed = [(n, im) for cam in CAMERAS for n, im in images.views[cam] if not found[n].found]
-    for d in detect_images(missed, board, params):
-        found[d.name] = d
-    # ---- per-camera intrinsics
-    per_cam = {}
-    for cam in CAMERAS:
-        dets = [found[n] for n, _ in images.views[cam]]
-        if params.intrinsics_from_stereo:
-            dets += [found[f"stereo/{cam}/{name}"] for name, _ in images.stereo]
-        per_cam[cam] = calibrate_camera(dets, board, cam, params)
-        if progress is not None:
-            progress("intrinsics", CAMERAS.index(cam) + 1, len(CAMERAS))
+    _require_rig_images(images)
+    found = _detect_rig(images, board, params, progress)
+    per_cam = _rig_intrinsics(images, found, board, params, progress)
     # ---- stereo
     pairs = [(name, found[f"stereo/side/{name}"], found[f"stereo/top/{name}"]) for name, _ in images.stereo]
     stereo = calibrate_stereo(per_cam["side"], per_cam["top"], pairs, board, params)
@@ -1427,55 +1616,8 @@ def calibrate_rig(
             f"{single_rms:.3f} px for single views) — did a camera move between pairs?"
         )
     elif params.joint_refinement:
-        obs = []
-        used_pairs = {v.name for v in stereo.used}
-        for cam in CAMERAS:
-            for name, T in per_cam[cam].poses.items():
-                # A stereo view whose pair is not used (the board found in this camera only) is one more
-                # view of this camera's intrinsics.
-                if not name.startswith("stereo/") or _pair_of(name) not in used_pairs:
-                    obs.append({"frame": name, "ref": cam, "T_ref_board": T, "views": [(cam, found[name].corners)]})
-        for name, ds, dt in pairs:
-            if name in used_pairs:
-                T_top_board = per_cam["top"].poses.get(dt.name)
-                if T_top_board is None:
-                    T_top_board = invert_transform(stereo.T_side_top) @ per_cam["side"].poses[ds.name]
-                obs.append({"frame": f"stereo/{name}", "ref": "top", "T_ref_board": T_top_board,
-                            "views": [("side", ds.corners), ("top", dt.corners)]})
-        obs.append({"frame": "world", "ref": "top", "T_ref_board": world.T_top_board, "views": [("top", d.corners) for d in world_dets]})
-        sol = refine_jointly({c: (per_cam[c].K, per_cam[c].dist) for c in CAMERAS}, obs, stereo.T_side_top, board,
-                             {c: per_cam[c].model for c in CAMERAS})
-        T_side_top = sol["T_side_top"]
-        cameras = {}
-        for cam in CAMERAS:
-            K, D = sol["cams"][cam]
-            errs, recs = [], []
-            for v in per_cam[cam].views:
-                if not v.used:
-                    recs.append(v)
-                    continue
-                if v.name.startswith("stereo/") and _pair_of(v.name) in used_pairs:
-                    frame = f"stereo/{_pair_of(v.name)}"
-                    e = sol["errors"][frame][CAMERAS.index(cam)]
-                    T = sol["poses"][frame] if cam == "top" else T_side_top @ sol["poses"][frame]
-                else:
-                    e = sol["errors"][v.name][0]
-                    T = sol["poses"][v.name]
-                errs.append(e)
-                recs.append(replace(v, rms_px=_rms(e), max_px=float(e.max()), oblique_deg=_oblique_deg(T)))
-            cameras[cam] = replace(per_cam[cam], K=K, dist=D, rms_px=_rms(np.concatenate(errs)), views=recs, std=sol["std"][cam])
-        s_errs, s_recs = [], []
-        for v in stereo.pairs:
-            if v.used:
-                e = np.concatenate(sol["errors"][f"stereo/{v.name}"])
-                s_errs.append(e)
-                v = replace(v, rms_px=_rms(e), max_px=float(e.max()))
-            s_recs.append(v)
-        stereo = StereoCalibration(T_side_top=T_side_top, rms_px=_rms(np.concatenate(s_errs)), pairs=s_recs)
-        e = np.concatenate(sol["errors"]["world"])
-        T_top_board = sol["poses"]["world"]
-        world = replace(world, T_top_board=T_top_board, T_top_world=T_top_board @ _board_to_world(world.world_origin_mm),
-                        rms_px=_rms(e), view=replace(world.view, rms_px=_rms(e), max_px=float(e.max())))
+        cameras, stereo, world = _refine_rig(per_cam, stereo, world, pairs, world_dets, found, board)
+        T_side_top = stereo.T_side_top
         refined = True
     T_side_world = compose_side_world(T_side_top, world.T_top_world)
     rig = RigCalibration(
