@@ -805,6 +805,33 @@ def _check_sizes(detections: list, what: str) -> tuple:
 
 
 # ----------------------------------------------------------------------------- stages
+def _require_views(k: int, records: dict, name: str, board: BoardSpec, params: CalibrationParams) -> None:
+    """Raise ``ValueError`` when ``k`` usable views are fewer than ``params.min_views``, counting the
+    rejected views (``records``) by reason."""
+    if k >= params.min_views:
+        return
+    reasons = {}
+    for r in records.values():
+        key = r.reason.split(":")[0]
+        reasons[key] = reasons.get(key, 0) + 1
+    detail = ", ".join(f"{v} {k}" for k, v in reasons.items())
+    raise ValueError(
+        f"{name}: only {k} usable views of the {board.label} board (need at least {params.min_views})"
+        + (f"; rejected: {detail}" if detail else "")
+    )
+
+
+def _identifiable_model(model: str, D: np.ndarray, std: dict) -> str:
+    """The distortion model ``model`` (e.g. ``"k1 k2 p1 p2 k3"``) less the terms the views cannot tell from
+    zero: coefficients ``D`` (k1 k2 p1 p2 k3) within 3 standard deviations ``std`` of it."""
+    terms = model.split()
+    if abs(D[2]) < 3 * std["p1"] and abs(D[3]) < 3 * std["p2"]:
+        terms = [t for t in terms if t not in ("p1", "p2")]
+    if abs(D[4]) < 3 * std["k3"]:
+        terms.remove("k3")
+    return " ".join(terms)
+
+
 def calibrate_camera(detections: list, board: BoardSpec, name: str, params: CalibrationParams | None = None) -> CameraCalibration:
     """One camera's intrinsics (``cv2.calibrateCamera``, model k1 k2 p1 p2 k3) with view rejection.
 
@@ -822,19 +849,7 @@ def calibrate_camera(detections: list, board: BoardSpec, name: str, params: Cali
     views = [d for d in detections if d.usable]
     obj = board.object_points().astype(np.float32)
 
-    def need(k, why=""):
-        if k < params.min_views:
-            reasons = {}
-            for r in records.values():
-                key = r.reason.split(":")[0]
-                reasons[key] = reasons.get(key, 0) + 1
-            detail = ", ".join(f"{v} {k}" for k, v in reasons.items())
-            raise ValueError(
-                f"{name}: only {k} usable views of the {board.label} board (need at least {params.min_views})"
-                + (f"; rejected: {detail}" if detail else "") + why
-            )
-
-    need(len(views))
+    _require_views(len(views), records, name, board, params)
     model = "k1 k2 p1 p2 k3" if params.distortion == "auto" else params.distortion
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     std = {}
@@ -860,7 +875,7 @@ def calibrate_camera(detections: list, board: BoardSpec, name: str, params: Cali
                 records[v.name] = ViewRecord(v.name, False, f"too oblique: board normal {a:.0f} deg from the optical axis (limit {params.max_oblique_deg:g})",
                                              oblique_deg=a, edge_width_px=v.edge_width_px)
         views = [v for v, k in zip(views, keep) if k]
-        need(len(views))
+        _require_views(len(views), records, name, board, params)
         K, D, poses, errs = run(views)
     while True:
         worst = _is_outlier(errs, params)
@@ -872,16 +887,9 @@ def calibrate_camera(detections: list, board: BoardSpec, name: str, params: Cali
                                      rms_px=_rms(errs[worst]), edge_width_px=v.edge_width_px)
         views = views[:worst] + views[worst + 1 :]
         K, D, poses, errs = run(views)
-    if params.distortion == "auto":
-        # hold at 0 the terms the views cannot tell from zero (3 standard deviations)
-        terms = model.split()
-        if abs(D[2]) < 3 * std["p1"] and abs(D[3]) < 3 * std["p2"]:
-            terms = [t for t in terms if t not in ("p1", "p2")]
-        if abs(D[4]) < 3 * std["k3"]:
-            terms.remove("k3")
-        if terms != model.split():
-            model = " ".join(terms)
-            K, D, poses, errs = run(views)
+    if params.distortion == "auto" and _identifiable_model(model, D, std) != model:
+        model = _identifiable_model(model, D, std)
+        K, D, poses, errs = run(views)
     for v, T, e in zip(views, poses, errs):
         records[v.name] = ViewRecord(v.name, True, None, _rms(e), float(e.max()), _oblique_deg(T), v.edge_width_px)
     order = [d.name for d in detections]
