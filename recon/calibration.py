@@ -606,11 +606,15 @@ def draw_coverage(cal: CameraCalibration, board: BoardSpec, background: np.ndarr
 
 @dataclass(frozen=True, eq=False)
 class StereoCalibration:
-    """``T_side_top`` (top camera frame -> side camera frame, mm) from the pairs."""
+    """``T_side_top`` (top camera frame -> side camera frame, mm) from the pairs.
+
+    ``T_top_board`` holds each used pair's board pose in the top camera (4x4, mm), as the stereo fit found it.
+    """
 
     T_side_top: np.ndarray
     rms_px: float
     pairs: list
+    T_top_board: dict = field(default_factory=dict)
 
     @property
     def used(self) -> list:
@@ -952,13 +956,15 @@ def calibrate_stereo(side: CameraCalibration, top: CameraCalibration, pairs: lis
         T_side_top[:3, :3] = R
         T_side_top[:3, 3] = T.ravel()
         errs = []
-        for (_, ds, dt), r, t in zip(ps, rvecs, tvecs):
-            T_top_board = _pose(r, t)
+        poses.clear()
+        for (name, ds, dt), r, t in zip(ps, rvecs, tvecs):
+            T_top_board = poses[name] = _pose(r, t)
             e_top = _reprojection(obj, dt.corners, top.K, top.dist, T_top_board)
             e_side = _reprojection(obj, ds.corners, side.K, side.dist, T_side_top @ T_top_board)
             errs.append(np.concatenate([e_side, e_top]))
         return T_side_top, errs
 
+    poses = {}
     T_side_top, errs = run(usable)
     while True:
         worst = _is_outlier(errs, params)
@@ -970,7 +976,8 @@ def calibrate_stereo(side: CameraCalibration, top: CameraCalibration, pairs: lis
         T_side_top, errs = run(usable)
     for (name, _, _), e in zip(usable, errs):
         records[name] = ViewRecord(name, True, None, _rms(e), float(e.max()))
-    return StereoCalibration(T_side_top=T_side_top, rms_px=_rms(np.concatenate(errs)), pairs=[records[p[0]] for p in pairs])
+    return StereoCalibration(T_side_top=T_side_top, rms_px=_rms(np.concatenate(errs)), pairs=[records[p[0]] for p in pairs],
+                             T_top_board=dict(poses))
 
 
 def _board_to_world(world_origin_mm) -> np.ndarray:
@@ -1496,9 +1503,12 @@ def _joint_observations(per_cam: dict, stereo: StereoCalibration, pairs: list, w
     for name, ds, dt in pairs:
         if name in used_pairs:
             T_top_board = per_cam["top"].poses.get(dt.name)
-            if T_top_board is None:
+            if T_top_board is None and ds.name in per_cam["side"].poses:
                 # no top-camera pose for this view: T_top_board = T_top_side @ T_side_board
                 T_top_board = invert_transform(stereo.T_side_top) @ per_cam["side"].poses[ds.name]
+            if T_top_board is None:
+                # Neither camera's intrinsics used this view (intrinsics_from_stereo off): the stereo fit's pose.
+                T_top_board = stereo.T_top_board[name]
             obs.append({"frame": f"stereo/{name}", "ref": "top", "T_ref_board": T_top_board,
                         "views": [("side", ds.corners), ("top", dt.corners)]})
     obs.append({"frame": "world", "ref": "top", "T_ref_board": world.T_top_board,
@@ -1541,7 +1551,7 @@ def _refined_stereo(stereo: StereoCalibration, sol: dict) -> StereoCalibration:
             s_errs.append(e)
             v = replace(v, rms_px=_rms(e), max_px=float(e.max()))
         s_recs.append(v)
-    return StereoCalibration(T_side_top=sol["T_side_top"], rms_px=_rms(np.concatenate(s_errs)), pairs=s_recs)
+    return replace(stereo, T_side_top=sol["T_side_top"], rms_px=_rms(np.concatenate(s_errs)), pairs=s_recs)
 
 
 def _refined_world(world: WorldFrame, sol: dict) -> WorldFrame:

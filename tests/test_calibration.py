@@ -96,6 +96,16 @@ def test_side_world_pose_matches_truth(calibrated, capture):
     np.testing.assert_allclose(rig["side"].T_cam_world, report.T_side_world)
 
 
+def test_intrinsics_from_single_views_only(capture):
+    """With intrinsics_from_stereo off, the pairs' boards are posed by the stereo fit in the joint refinement
+    (it looked them up in the cameras' own views and died with a KeyError)."""
+    rig, report = calibrate_rig(capture.images(), capture.board, CalibrationParams(intrinsics_from_stereo=False),
+                                world_origin_mm=capture.world_origin_mm)
+    d_mm, d_deg = pose_difference(rig["side"].T_cam_world, capture.truth["side"].T_cam_world)
+    assert d_mm < 0.3 and d_deg < 0.1, f"T_side_world off by {d_mm:.3f} mm, {d_deg:.4f} deg"
+    assert report.stereo.used
+
+
 def test_calibrated_rig_projects_the_workspace_like_the_true_one(calibrated, capture):
     rig, _ = calibrated
     rng = np.random.default_rng(0)
