@@ -788,9 +788,54 @@ def _px(v, mmpp):
 
 
 def _html_page(run: RunData, figs: dict, details: list, meshes: dict, notes: list, built_s: float) -> str:
+    """The report page: summary, figures, frame table, failed frames and the frame-by-frame overlays.
+
+    Parameters
+    ----------
+    run : RunData
+        The run the page is about.
+    figs : dict
+        Figure key -> file name relative to the page; ``"overlay"`` maps frame -> overlay PNG.
+    details : list of int
+        Frames shown one by one (with their overlays).
+    meshes : dict
+        Frame -> {format: link} of the mesh files written (empty: none).
+    notes : list of str
+        Remarks shown under the summary (plain text, escaped here).
+    built_s : float
+        Time the report took to build, s.
+
+    Returns
+    -------
+    str
+        The HTML document.
+    """
+    e = html.escape
+    o = _html_head(run)
+    o += _html_summary(run.summary, notes)
+    o += _html_figures(run, figs, meshes)
+    o += _html_frame_table(run, details, meshes)
+    o += _html_failed(run, details)
+    o += _html_details(run, figs, details)
+    o.append(f"<p class='note'>Built by <code>ctr-bench report</code> in {built_s:.1f} s; rebuild with <code>ctr-bench report {e(str(run.out))}</code>.</p>")
+    o.append("</body></html>")
+    return "\n".join(o)
+
+
+def _html_head(run: RunData) -> list:
+    """The page's head, title line (run, session, build time) and navigation bar, as HTML lines.
+
+    Parameters
+    ----------
+    run : RunData
+        The run; its summary names the method and session, its session meta the scene.
+
+    Returns
+    -------
+    list of str
+    """
     s = run.summary
     e = html.escape
-    mmpp = s.get("mm_per_px")
     scene = run.session_meta.get("scene_name") or ""
     source = run.session_meta.get("source") or ""
     title = f"ctr-bench report: {scene + ' — ' if scene else ''}method {s.get('method', '?')}"
@@ -800,8 +845,23 @@ def _html_page(run: RunData, figs: dict, details: list, meshes: dict, notes: lis
              f"{' (' + e(source) + ')' if source else ''} &middot; report built {e(time.strftime('%Y-%m-%d %H:%M:%S'))}</p>")
     o.append("<nav><a href='#summary'>Summary</a><a href='#shape'>Backbones</a><a href='#errors'>Errors</a>"
              "<a href='#timing'>Timing</a><a href='#tubes'>Tubes</a><a href='#frames'>Frames</a><a href='#failed'>Failed frames</a></nav>")
-    # ---- summary
-    o.append("<h2 id='summary'>Summary</h2><table>")
+    return o
+
+
+def _summary_rows(s: dict) -> list:
+    """The summary table's (label, HTML value) rows; figures the run did not measure are left out.
+
+    Parameters
+    ----------
+    s : dict
+        The run's ``summary.json``: errors in mm, times in ms, ``mm_per_px`` in mm per pixel at the base.
+
+    Returns
+    -------
+    list of (str, str)
+    """
+    e = html.escape
+    mmpp = s.get("mm_per_px")
     rows = [
         ("method", e(str(s.get("method")))),
         ("frames", f"{s.get('frames', 0)} ({s.get('failed_frames', 0)} failed, "
@@ -824,49 +884,133 @@ def _html_page(run: RunData, figs: dict, details: list, meshes: dict, notes: lis
         fps = 1e3 / s["ms_per_pair_median"] if s["ms_per_pair_median"] else None
         rows.append(("time per pair, median / p95", f"<b>{_f(s['ms_per_pair_median'], 1)}</b> / {_f(s.get('ms_per_pair_p95'), 1, ' ms')}"
                      f"{f' ({fps:.1f} pairs/s)' if fps else ''}"))
-    for k, v in rows:
+    return rows
+
+
+def _html_summary(s: dict, notes: list) -> list:
+    """The summary section: its table, the method parameters (folded) and the notes, as HTML lines.
+
+    Parameters
+    ----------
+    s : dict
+        The run's ``summary.json``.
+    notes : list of str
+        Plain-text remarks (escaped here).
+
+    Returns
+    -------
+    list of str
+    """
+    e = html.escape
+    o = ["<h2 id='summary'>Summary</h2><table>"]
+    for k, v in _summary_rows(s):
         o.append(f"<tr><th class='l'>{k}</th><td class='l'>{v}</td></tr>")
     o.append("</table>")
     if s.get("params"):
         o.append("<details><summary>method parameters</summary><pre>" + e(json.dumps(s["params"], indent=2)) + "</pre></details>")
     for n in notes:
         o.append(f"<p class='note'>{e(n)}</p>")
+    return o
 
-    def img(key, alt, note=""):
-        if key in figs:
-            o.append(f"<div class='figs'><img src='{e(figs[key])}' alt='{e(alt)}'></div>")
-            if note:
-                o.append(f"<p class='note'>{note}</p>")
 
-    o.append("<h2 id='shape'>Backbones</h2>")
+def _img_html(figs: dict, key: str, alt: str, note: str = "") -> list:
+    """A figure and its caption as HTML lines; none when the figure was not drawn.
+
+    Parameters
+    ----------
+    figs : dict
+        Figure key -> file name relative to the page.
+    key, alt : str
+        The figure's key in ``figs`` and its alternative text.
+    note : str
+        Caption (HTML, not escaped); empty: none.
+
+    Returns
+    -------
+    list of str
+    """
+    e = html.escape
+    if key not in figs:
+        return []
+    o = [f"<div class='figs'><img src='{e(figs[key])}' alt='{e(alt)}'></div>"]
+    if note:
+        o.append(f"<p class='note'>{note}</p>")
+    return o
+
+
+def _html_figures(run: RunData, figs: dict, meshes: dict) -> list:
+    """The figure sections (backbones, errors, timing, tubes) and where the mesh files are, as HTML lines.
+
+    Parameters
+    ----------
+    run : RunData
+        The run (its directory is named in the hint to write meshes).
+    figs : dict
+        Figure key -> file name relative to the page.
+    meshes : dict
+        Frame -> {format: link} of the mesh files written (empty: none).
+
+    Returns
+    -------
+    list of str
+    """
+    e = html.escape
+    o = ["<h2 id='shape'>Backbones</h2>"]
     if "backbones_3d" not in figs:
         o.append("<p>No frame was reconstructed: nothing to draw (see <a href='#failed'>failed frames</a>).</p>")
-    img("backbones_3d", "all backbones in 3D", "Every reconstructed backbone (solid), coloured from dark blue (first frame) to light blue "
-        "(last frame) as in the paper's Fig. 8; ground truth dashed in the same colour.")
-    img("projections", "top and side projections", "The same backbones seen from above (x-y) and from the side (x-z), equal scales; dot: reconstructed tip.")
+    o += _img_html(figs, "backbones_3d", "all backbones in 3D",
+                   "Every reconstructed backbone (solid), coloured from dark blue (first frame) to light blue "
+                   "(last frame) as in the paper's Fig. 8; ground truth dashed in the same colour.")
+    o += _img_html(figs, "projections", "top and side projections",
+                   "The same backbones seen from above (x-y) and from the side (x-z), equal scales; dot: reconstructed tip.")
     o.append("<h2 id='errors'>Errors</h2>")
     if "errors_per_frame" in figs:
-        img("errors_per_frame", "errors per frame", "Mean: mean closest-point distance (both directions pooled); max: symmetric Hausdorff distance; "
-            "tip: distance between the tips. Right axis in pixels at the robot base.")
-        img("error_along_arc", "error along arc length", "Distance of each reconstructed point to the true backbone, placed at the arc "
-            "length (from the robot base) of its closest true point: where along the robot the error comes from; "
-            "a stretch without line was not reconstructed.")
+        o += _img_html(figs, "errors_per_frame", "errors per frame",
+                       "Mean: mean closest-point distance (both directions pooled); max: symmetric Hausdorff distance; "
+                       "tip: distance between the tips. Right axis in pixels at the robot base.")
+        o += _img_html(figs, "error_along_arc", "error along arc length",
+                       "Distance of each reconstructed point to the true backbone, placed at the arc "
+                       "length (from the robot base) of its closest true point: where along the robot the error comes from; "
+                       "a stretch without line was not reconstructed.")
     else:
         o.append("<p>No ground truth: nothing to score.</p>")
     o.append("<h2 id='timing'>Timing</h2>")
-    img("timing", "timing", "Wall time of the reconstruction of one pair, images already in memory, one core.")
+    o += _img_html(figs, "timing", "timing", "Wall time of the reconstruction of one pair, images already in memory, one core.")
     o.append("<h2 id='tubes'>Tubes</h2>")
-    img("tubes_over_time", "tubes over time", "Reconstructed tubes (circles along the backbone with normals along the tangent, patched together — the paper's picture).")
-    img("tubes", "reconstructed vs true tubes", "Reconstructed tube (blue) and true tube (orange, translucent) on the same axes, for a few frames.")
+    o += _img_html(figs, "tubes_over_time", "tubes over time",
+                   "Reconstructed tubes (circles along the backbone with normals along the tangent, "
+                   "patched together — the paper's picture).")
+    o += _img_html(figs, "tubes", "reconstructed vs true tubes",
+                   "Reconstructed tube (blue) and true tube (orange, translucent) on the same axes, for a few frames.")
     if meshes:
         o.append(f"<p>Tube meshes of {len(meshes)} frames (world mm) in <code>../meshes/</code>: PLY, OBJ and GLB per frame; "
                  "<code>_both.glb</code> holds reconstruction and truth together for any glTF viewer.</p>")
     else:
         o.append("<p class='note'>No mesh files for this run (more than "
                  f"{MAX_MESH_FRAMES} frames): <code>ctr-bench report {e(str(run.out))} --meshes</code> writes them.</p>")
-    # ---- per-frame table
-    o.append("<h2 id='frames'>Frames</h2><table><tr><th>frame</th><th>t (s)</th><th class='l'>status</th><th>points</th><th>length mm</th>"
-             "<th>transition s mm</th><th>tip err mm</th><th>mean err mm</th><th>max err mm</th><th>length err mm</th><th>ms</th><th class='l'>files</th></tr>")
+    return o
+
+
+def _html_frame_table(run: RunData, details: list, meshes: dict) -> list:
+    """The per-frame table (status, sizes in mm, errors in mm, time in ms, links to the frame and its meshes), as HTML lines.
+
+    Parameters
+    ----------
+    run : RunData
+        The run; one row per record.
+    details : list of int
+        Frames shown one by one (their rows link to them).
+    meshes : dict
+        Frame -> {format: link} of the mesh files written.
+
+    Returns
+    -------
+    list of str
+    """
+    e = html.escape
+    o = ["<h2 id='frames'>Frames</h2><table><tr><th>frame</th><th>t (s)</th><th class='l'>status</th><th>points</th><th>length mm</th>"
+         "<th>transition s mm</th><th>tip err mm</th><th>mean err mm</th><th>max err mm</th><th>length err mm</th>"
+         "<th>ms</th><th class='l'>files</th></tr>"]
     dset = set(details)
     for r in run.records:
         fr = r["frame"]
@@ -884,41 +1028,77 @@ def _html_page(run: RunData, figs: dict, details: list, meshes: dict, notes: lis
                  f"<td>{_f(r.get('mean_error_mm'))}</td><td>{_f(r.get('max_error_mm'))}</td><td>{_f(r.get('length_error_mm'), 2)}</td>"
                  f"<td>{_f(r.get('ms'), 1)}</td><td class='l'>{link}</td></tr>")
     o.append("</table>")
-    # ---- failed
-    o.append("<h2 id='failed'>Failed and suspect frames</h2>")
+    return o
+
+
+def _html_failed(run: RunData, details: list) -> list:
+    """The failed and suspect frames, grouped by status and reason (failed first, then the largest groups), as HTML lines.
+
+    Parameters
+    ----------
+    run : RunData
+        The run.
+    details : list of int
+        Frames shown one by one (their numbers link to them).
+
+    Returns
+    -------
+    list of str
+    """
+    e = html.escape
+    o = ["<h2 id='failed'>Failed and suspect frames</h2>"]
     failed = [r for r in run.records if r["status"] != "ok"]
-    if failed:
-        groups = {}
-        for r in failed:
-            groups.setdefault((r["status"], str(r.get("reason"))), []).append(r["frame"])
-        n_suspect = sum(r["status"] == "suspect" for r in failed)
-        o.append(f"<p>{len(failed) - n_suspect} of {len(run.records)} frames failed and {n_suspect} are suspect (reconstructed, "
-                 f"but the self-check says the shape does not explain the images), for {len(groups)} reason{'s' if len(groups) > 1 else ''}:</p>")
-        o.append("<table><tr><th>frames</th><th class='l'>status</th><th class='l'>frame numbers</th><th class='l'>reason</th></tr>")
-        for (status, reason), frs in sorted(groups.items(), key=lambda kv: (kv[0][0] != "failed", -len(kv[1]), kv[1][0])):
-            links = ", ".join(f"<a href='#f{f}'>{f}</a>" if f in dset else str(f) for f in frs)
-            o.append(f"<tr class='{e(status)}'><td>{len(frs)}</td><td class='l'>{e(status)}</td><td class='l'>{links}</td><td class='l'>{e(reason)}</td></tr>")
-        o.append("</table>")
-    else:
+    if not failed:
         o.append("<p>None: every frame was reconstructed and passed the self-check.</p>")
-    # ---- per-frame details
-    if details:
-        o.append("<h2 id='detail'>Frame by frame</h2>")
-        if len(details) < len(run.records):
-            o.append(f"<p class='note'>{len(details)} of {len(run.records)} frames shown: the failed ones, the worst by mean error, and evenly spaced others.</p>")
-        o.append("<p class='note'>Each camera image with the reconstruction reprojected through the calibration (blue, circle at the tip) "
-                 "and the ground truth where the robot really is in the image (orange, cross at the tip): the robot region and a zoom on the tip.</p>")
-        by = {r["frame"]: r for r in run.records}
-        for fr in details:
-            r = by.get(fr, {})
-            o.append(f"<h3 id='f{fr}'>Frame {fr}</h3>")
-            if "overlay" in figs and fr in figs["overlay"]:
-                o.append(f"<img src='{e(figs['overlay'][fr])}' alt='frame {fr} overlays' loading='lazy'>")
-            elif r.get("status") != "ok":
-                o.append(f"<p>{e(str(r.get('status')))}: {e(str(r.get('reason')))}</p>")
-    o.append(f"<p class='note'>Built by <code>ctr-bench report</code> in {built_s:.1f} s; rebuild with <code>ctr-bench report {e(str(run.out))}</code>.</p>")
-    o.append("</body></html>")
-    return "\n".join(o)
+        return o
+    dset = set(details)
+    groups = {}
+    for r in failed:
+        groups.setdefault((r["status"], str(r.get("reason"))), []).append(r["frame"])
+    n_suspect = sum(r["status"] == "suspect" for r in failed)
+    o.append(f"<p>{len(failed) - n_suspect} of {len(run.records)} frames failed and {n_suspect} are suspect (reconstructed, "
+             f"but the self-check says the shape does not explain the images), for {len(groups)} reason{'s' if len(groups) > 1 else ''}:</p>")
+    o.append("<table><tr><th>frames</th><th class='l'>status</th><th class='l'>frame numbers</th><th class='l'>reason</th></tr>")
+    for (status, reason), frs in sorted(groups.items(), key=lambda kv: (kv[0][0] != "failed", -len(kv[1]), kv[1][0])):
+        links = ", ".join(f"<a href='#f{f}'>{f}</a>" if f in dset else str(f) for f in frs)
+        o.append(f"<tr class='{e(status)}'><td>{len(frs)}</td><td class='l'>{e(status)}</td><td class='l'>{links}</td><td class='l'>{e(reason)}</td></tr>")
+    o.append("</table>")
+    return o
+
+
+def _html_details(run: RunData, figs: dict, details: list) -> list:
+    """The frame-by-frame section: each detail frame's overlay picture, or why it failed when there is none, as HTML lines.
+
+    Parameters
+    ----------
+    run : RunData
+        The run.
+    figs : dict
+        Figure key -> file name; ``figs["overlay"]`` maps frame -> overlay PNG, when overlays were drawn.
+    details : list of int
+        Frames to show (empty: no section).
+
+    Returns
+    -------
+    list of str
+    """
+    e = html.escape
+    if not details:
+        return []
+    o = ["<h2 id='detail'>Frame by frame</h2>"]
+    if len(details) < len(run.records):
+        o.append(f"<p class='note'>{len(details)} of {len(run.records)} frames shown: the failed ones, the worst by mean error, and evenly spaced others.</p>")
+    o.append("<p class='note'>Each camera image with the reconstruction reprojected through the calibration (blue, circle at the tip) "
+             "and the ground truth where the robot really is in the image (orange, cross at the tip): the robot region and a zoom on the tip.</p>")
+    by = {r["frame"]: r for r in run.records}
+    for fr in details:
+        r = by.get(fr, {})
+        o.append(f"<h3 id='f{fr}'>Frame {fr}</h3>")
+        if "overlay" in figs and fr in figs["overlay"]:
+            o.append(f"<img src='{e(figs['overlay'][fr])}' alt='frame {fr} overlays' loading='lazy'>")
+        elif r.get("status") != "ok":
+            o.append(f"<p>{e(str(r.get('status')))}: {e(str(r.get('reason')))}</p>")
+    return o
 
 
 def _status_html(r: dict) -> str:
@@ -976,6 +1156,230 @@ def _overlay_for_frame(run: RunData, r: dict, path: Path) -> Path | None:
     return overlay_panels(path, images, recon_uv, truth_uv, _frame_header(r, run.summary.get("mm_per_px")), footer)
 
 
+def _fresh_dir(path: Path) -> Path:
+    """Empty ``path`` (a leftover of an interrupted build is removed) and create it with its ``frames/``.
+
+    Parameters
+    ----------
+    path : Path
+        The temporary report directory.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    if path.exists():
+        shutil.rmtree(path)
+    (path / "frames").mkdir(parents=True)
+    return path
+
+
+def _truth_backbones(run: RunData) -> dict:
+    """Frame -> ground truth (``backbone_world_mm``, mm, and ``outer_radius_mm``) of the frames that have a true backbone.
+
+    Parameters
+    ----------
+    run : RunData
+        The run; frames without truth (or without a session) are left out.
+
+    Returns
+    -------
+    dict
+    """
+    truth_bb = {}
+    for r in run.records:
+        t = run.truth(r["frame"], keys=("backbone_world_mm", "outer_radius_mm"))
+        if t is not None and "backbone_world_mm" in t:
+            truth_bb[r["frame"]] = t
+    return truth_bb
+
+
+def _error_figures(tmp: Path, recs: list, ok: list, bbs: list, truths: list, mmpp) -> dict:
+    """Draw the error figures: error along the arc (frames with a true backbone) and errors per frame.
+
+    Parameters
+    ----------
+    tmp : Path
+        Directory the PNGs go to.
+    recs : list of dict
+        Every frame's record (errors in mm).
+    ok, bbs, truths : list
+        The reconstructed frames' records, backbones (N x 3, mm) and true backbones (mm; None without truth).
+    mmpp : float or None
+        Pixel footprint at the base, mm per pixel (the right axes in pixels).
+
+    Returns
+    -------
+    dict
+        Figure key -> PNG file name.
+    """
+    figs = {}
+    curves, ctimes = [], []
+    for r, b, tr in zip(ok, bbs, truths):
+        if tr is not None and len(b):
+            curves.append(closest_arc_length(b, tr))
+            ctimes.append(r.get("t_s") or 0.0)
+    if curves:
+        figs["error_along_arc"] = fig_error_along_arc(tmp / "error_along_arc.png", curves, ctimes, mmpp).name
+    figs["errors_per_frame"] = fig_errors_per_frame(
+        tmp / "errors_per_frame.png", [r["frame"] for r in recs], [r.get("mean_error_mm") for r in recs],
+        [r.get("max_error_mm") for r in recs], [r.get("tip_error_mm") for r in recs],
+        [r["frame"] for r in recs if r["status"] == "failed"], mmpp).name
+    return figs
+
+
+def _timing_figure(tmp: Path, recs: list) -> str:
+    """Draw the timing figure: time per pair of the ok frames and, when recorded, per stage (ms).
+
+    Parameters
+    ----------
+    tmp : Path
+        Directory the PNG goes to.
+    recs : list of dict
+        Every frame's record (``ms``, ``timings_ms``).
+
+    Returns
+    -------
+    str
+        The PNG's file name.
+    """
+    ms = [r["ms"] for r in recs if r["status"] == "ok" and r.get("ms") is not None]
+    stage = {}
+    for r in recs:
+        for k, v in (r.get("timings_ms") or {}).items():
+            if v is not None:
+                stage.setdefault(k, []).append(v)
+    return fig_timing(tmp / "timing.png", ms, stage or None).name
+
+
+def _preview_tube(b: np.ndarray, trans, outer_r: float, inner_r: float):
+    """A light tube mesh for the pictures: 1 mm rings, 10 sides (full meshes would make matplotlib slow).
+
+    Parameters
+    ----------
+    b : ndarray (N, 3)
+        Backbone, mm.
+    trans : float or None
+        Arc length of the outer-to-inner tube transition, mm.
+    outer_r, inner_r : float
+        Tube radii, mm.
+    """
+    s = arc_length(b)
+    n = max(2, int(np.ceil(s[-1] / 1.0)) + 1)
+    sn = np.linspace(0, s[-1], n)
+    p = np.stack([np.interp(sn, s, b[:, k]) for k in range(3)], axis=1)
+    return tube_mesh(p, radii_along(sn, trans, outer_r, inner_r), sides=10)
+
+
+def _tube_figures(tmp: Path, ok: list, rec_mesh: dict, truth_bb: dict, outer_r: float, inner_r: float, notes: list) -> dict:
+    """Draw the tube pictures: every frame's tube over time, and up to six frames against their true tubes.
+
+    Parameters
+    ----------
+    tmp : Path
+        Directory the PNGs go to.
+    ok : list of dict
+        The reconstructed frames' records.
+    rec_mesh : dict
+        Frame -> (backbone, mm; transition arc length, mm) of the frames with a tube.
+    truth_bb : dict
+        Frame -> ground truth (see :func:`_truth_backbones`).
+    outer_r, inner_r : float
+        Tube radii, mm.
+    notes : list of str
+        Gets a note when the pictures cannot be drawn.
+
+    Returns
+    -------
+    dict
+        Figure key -> PNG file name (what was drawn before a failure).
+    """
+    from .meshes import recon_tube, truth_tube
+
+    figs = {}
+    order = [r["frame"] for r in ok if r["frame"] in rec_mesh]
+    try:
+        figs["tubes_over_time"] = fig_tubes(tmp / "tubes_over_time.png", [], over_time=(
+            [_preview_tube(*rec_mesh[f], outer_r, inner_r) for f in order],
+            [r.get("t_s") or 0.0 for r in ok if r["frame"] in rec_mesh])).name
+        pick = [order[i] for i in np.unique(np.linspace(0, len(order) - 1, min(6, len(order))).round().astype(int))]
+        panels, titles = [], []
+        for f in pick:
+            t = truth_bb.get(f)
+            panels.append((recon_tube(*rec_mesh[f], outer_r, inner_r, sides=12),
+                           truth_tube(t["backbone_world_mm"], t.get("outer_radius_mm"), step_mm=1.0, sides=12) if t is not None else None))
+            titles.append(f"frame {f}")
+        figs["tubes"] = fig_tubes(tmp / "tubes.png", panels, titles).name
+    except ValueError as exc:
+        notes.append(f"tube pictures skipped: {exc}")
+    return figs
+
+
+def _write_meshes(run: RunData, rec_mesh: dict, outer_r: float, inner_r: float, notes: list) -> dict:
+    """Write each frame's tube meshes (PLY, OBJ, GLB, world mm) into ``OUT/meshes/``.
+
+    Parameters
+    ----------
+    run : RunData
+        The run (its truth goes into the ``_both.glb`` files).
+    rec_mesh : dict
+        Frame -> (backbone, mm; transition arc length, mm).
+    outer_r, inner_r : float
+        Tube radii, mm.
+    notes : list of str
+        Gets a note per frame whose mesh could not be made.
+
+    Returns
+    -------
+    dict
+        Frame -> {format: link relative to the report page}.
+    """
+    from .meshes import write_frame_meshes
+
+    mdir = run.out / "meshes"
+    mesh_links = {}
+    for f, (b, trans) in rec_mesh.items():
+        tr = run.truth(f, keys=("backbone_world_mm", "outer_radius_mm"))
+        try:
+            paths = write_frame_meshes(mdir, f, b, trans, tr, outer_r, inner_r)
+        except ValueError as exc:
+            notes.append(f"frame {f}: no mesh ({exc})")
+            continue
+        d = {}
+        for p in paths:
+            key = "both.glb" if p.name.endswith("_both.glb") else p.suffix[1:]
+            d[key] = f"../meshes/{p.name}"
+        mesh_links[f] = d
+    return mesh_links
+
+
+def _overlay_figures(run: RunData, details: list, tmp: Path) -> dict:
+    """Draw the camera overlays of the detail frames into ``tmp/frames/``.
+
+    Parameters
+    ----------
+    run : RunData
+        The run (with its session's images).
+    details : list of int
+        Frames to draw.
+    tmp : Path
+        The temporary report directory.
+
+    Returns
+    -------
+    dict
+        Frame -> overlay PNG relative to the page (frames without images are left out).
+    """
+    overlays = {}
+    by = {r["frame"]: r for r in run.records}
+    for f in details:
+        p = _overlay_for_frame(run, by[f], tmp / "frames" / f"{f:06d}.png")
+        if p is not None:
+            overlays[f] = f"frames/{p.name}"
+    return overlays
+
+
 def build_report(out_dir, meshes: bool | None = None, max_detail_frames: int = MAX_DETAIL_FRAMES, overlays: bool = True, log=None) -> Path:
     """Build ``OUT/report/index.html`` (and, per the mesh rule, ``OUT/meshes/``) for a run directory.
 
@@ -1001,20 +1405,14 @@ def build_report(out_dir, meshes: bool | None = None, max_detail_frames: int = M
     run = load_run(out_dir)
     out = run.out
     say = log or (lambda msg: None)
-    tmp = out / ".report-tmp"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    (tmp / "frames").mkdir(parents=True)
+    # built aside and renamed at the end: an interrupted build never leaves half a report
+    tmp = _fresh_dir(out / ".report-tmp")
     figs, notes = {}, []
     recs = run.records
     ok = [r for r in recs if r["status"] == "ok" and r["frame"] in run.backbones]
     times = np.array([r.get("t_s") or 0.0 for r in ok], float)
     bbs = [run.backbones[r["frame"]] for r in ok]
-    truth_bb = {}
-    for r in recs:
-        t = run.truth(r["frame"], keys=("backbone_world_mm", "outer_radius_mm"))
-        if t is not None and "backbone_world_mm" in t:
-            truth_bb[r["frame"]] = t
+    truth_bb = _truth_backbones(run)
     truths = [truth_bb[r["frame"]]["backbone_world_mm"] if r["frame"] in truth_bb else None for r in ok]
     base = run.rig.base_point_world_mm if run.rig is not None else None
     mmpp = run.summary.get("mm_per_px")
@@ -1023,93 +1421,29 @@ def build_report(out_dir, meshes: bool | None = None, max_detail_frames: int = M
 
     say("report: figures")
     if bbs:
-        figs["backbones_3d"] = fig_backbones_3d(tmp / "backbones_3d.png", bbs, times, truths if any(t is not None for t in truths) else None, base).name
-        figs["projections"] = fig_projections(tmp / "projections.png", bbs, times, truths if any(t is not None for t in truths) else None, base).name
-    scored = [r for r in recs if r.get("mean_error_mm") is not None]
-    if scored or truth_bb:
-        curves, ctimes = [], []
-        for r, b, tr in zip(ok, bbs, truths):
-            if tr is not None and len(b):
-                curves.append(closest_arc_length(b, tr))
-                ctimes.append(r.get("t_s") or 0.0)
-        if curves:
-            figs["error_along_arc"] = fig_error_along_arc(tmp / "error_along_arc.png", curves, ctimes, mmpp).name
-        figs["errors_per_frame"] = fig_errors_per_frame(
-            tmp / "errors_per_frame.png", [r["frame"] for r in recs], [r.get("mean_error_mm") for r in recs],
-            [r.get("max_error_mm") for r in recs], [r.get("tip_error_mm") for r in recs],
-            [r["frame"] for r in recs if r["status"] == "failed"], mmpp).name
-    ms = [r["ms"] for r in recs if r["status"] == "ok" and r.get("ms") is not None]
-    stage = {}
-    for r in recs:
-        for k, v in (r.get("timings_ms") or {}).items():
-            if v is not None:
-                stage.setdefault(k, []).append(v)
-    figs["timing"] = fig_timing(tmp / "timing.png", ms, stage or None).name
+        drawn_truths = truths if any(t is not None for t in truths) else None
+        figs["backbones_3d"] = fig_backbones_3d(tmp / "backbones_3d.png", bbs, times, drawn_truths, base).name
+        figs["projections"] = fig_projections(tmp / "projections.png", bbs, times, drawn_truths, base).name
+    if any(r.get("mean_error_mm") is not None for r in recs) or truth_bb:
+        figs.update(_error_figures(tmp, recs, ok, bbs, truths, mmpp))
+    figs["timing"] = _timing_figure(tmp, recs)
 
-    # ---- tubes
     outer_r, inner_r = _tube_radii(run)
-    rec_mesh = {}
-    for r in ok:
-        b = run.backbones[r["frame"]]
-        if len(b) >= 2:
-            rec_mesh[r["frame"]] = (b, r.get("transition_s_mm"))
+    # a tube needs two backbone points at least
+    rec_mesh = {r["frame"]: (run.backbones[r["frame"]], r.get("transition_s_mm"))
+                for r in ok if len(run.backbones[r["frame"]]) >= 2}
     if rec_mesh:
         say("report: tubes")
-        from .meshes import recon_tube, truth_tube
-
-        # thin the picture's meshes (1 mm rings, 10 sides) to keep matplotlib quick
-        def light(b, trans):
-            s = arc_length(b)
-            n = max(2, int(np.ceil(s[-1] / 1.0)) + 1)
-            sn = np.linspace(0, s[-1], n)
-            p = np.stack([np.interp(sn, s, b[:, k]) for k in range(3)], axis=1)
-            return tube_mesh(p, radii_along(sn, trans, outer_r, inner_r), sides=10)
-
-        order = [r["frame"] for r in ok if r["frame"] in rec_mesh]
-        try:
-            figs["tubes_over_time"] = fig_tubes(tmp / "tubes_over_time.png", [], over_time=(
-                [light(*rec_mesh[f]) for f in order], [r.get("t_s") or 0.0 for r in ok if r["frame"] in rec_mesh])).name
-            pick = [order[i] for i in np.unique(np.linspace(0, len(order) - 1, min(6, len(order))).round().astype(int))]
-            panels, titles = [], []
-            for f in pick:
-                t = truth_bb.get(f)
-                panels.append((recon_tube(*rec_mesh[f], outer_r, inner_r, sides=12),
-                               truth_tube(t["backbone_world_mm"], t.get("outer_radius_mm"), step_mm=1.0, sides=12) if t is not None else None))
-                titles.append(f"frame {f}")
-            figs["tubes"] = fig_tubes(tmp / "tubes.png", panels, titles).name
-        except ValueError as exc:
-            notes.append(f"tube pictures skipped: {exc}")
-
+        figs.update(_tube_figures(tmp, ok, rec_mesh, truth_bb, outer_r, inner_r, notes))
     mesh_links = {}
-    n_ok = len(rec_mesh)
     if rec_mesh and (meshes or (meshes is None and len(recs) <= MAX_MESH_FRAMES)):
-        say(f"report: meshes of {n_ok} frames")
-        from .meshes import write_frame_meshes
+        say(f"report: meshes of {len(rec_mesh)} frames")
+        mesh_links = _write_meshes(run, rec_mesh, outer_r, inner_r, notes)
 
-        mdir = out / "meshes"
-        for f, (b, trans) in rec_mesh.items():
-            tr = run.truth(f, keys=("backbone_world_mm", "outer_radius_mm"))
-            try:
-                paths = write_frame_meshes(mdir, f, b, trans, tr, outer_r, inner_r)
-            except ValueError as exc:
-                notes.append(f"frame {f}: no mesh ({exc})")
-                continue
-            d = {}
-            for p in paths:
-                key = "both.glb" if p.name.endswith("_both.glb") else p.suffix[1:]
-                d[key] = f"../meshes/{p.name}"
-            mesh_links[f] = d
-
-    # ---- overlays
     details = select_detail_frames(recs, max_detail_frames)
     if overlays and run.session_dir is not None and details:
         say(f"report: overlays of {len(details)} frames")
-        figs["overlay"] = {}
-        by = {r["frame"]: r for r in recs}
-        for f in details:
-            p = _overlay_for_frame(run, by[f], tmp / "frames" / f"{f:06d}.png")
-            if p is not None:
-                figs["overlay"][f] = f"frames/{p.name}"
+        figs["overlay"] = _overlay_figures(run, details, tmp)
 
     page = _html_page(run, figs, details, mesh_links, notes, time.perf_counter() - t_start)
     (tmp / "index.html").write_text(page, encoding="utf-8")

@@ -83,15 +83,19 @@ def _table(title: str, default, tuned) -> str:
     return "\n".join(lines)
 
 
-def _run(args) -> int:
-    from recon.params import dumps_toml, params_to_dict
-    from rig.progress import Progress
-    from rig.reconstruct import write_json_atomic
-    from rig.tune import evaluate, load_tune_sessions, tune, tuned_dict
-    from rig.tuneplot import plot_sensitivity
+def _output_paths(args) -> tuple:
+    """The parameter file and report directory to write, refused when either would overwrite something.
 
-    from .reconstruct import method_params, one_core
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``out`` and ``report`` (None: next to ``out``, named ``<out>-tune``).
 
+    Returns
+    -------
+    (Path, Path)
+        The ``.toml`` parameter file and the report directory.
+    """
     out = Path(args.out)
     if out.suffix != ".toml":
         raise ValueError(f"--out {out}: must name a .toml parameter file")
@@ -100,14 +104,119 @@ def _run(args) -> int:
     report = Path(args.report) if args.report else out.with_name(out.stem + "-tune")
     if report.exists() and any(report.iterdir()):
         raise ValueError(f"--report {report}: exists and is not empty (nothing is overwritten)")
+    return out, report
+
+
+def _check_counts(args) -> None:
+    """Refuse a search size (generations, population, sweep points, jobs) below one."""
     for name in ("maxiter", "popsize", "points", "jobs"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name}: must be >= 1, got {getattr(args, name)}")
+
+
+def _scene_lists(args) -> tuple:
+    """The tuning and held-out scene files; a scene in both is refused (held-out scenes must be unseen).
+
+    Returns
+    -------
+    (list of Path, list of Path)
+        Tuning scenes, held-out scenes (empty without ``--holdout``).
+    """
     scenes = _scene_files(args.scenes, "SCENES")
     holdout = _scene_files(args.holdout, "--holdout") if args.holdout else []
     overlap = {p.resolve() for p in scenes} & {p.resolve() for p in holdout}
     if overlap:
         raise ValueError(f"--holdout {sorted(overlap)[0]}: also a tuning scene (held-out scenes must be unseen)")
+    return scenes, holdout
+
+
+def _score_holdout(args, result, holdout: list, progress) -> tuple:
+    """Score the default and the tuned parameters on the held-out scenes and print the table.
+
+    Returns
+    -------
+    (Evaluation, Evaluation)
+        Default, tuned (errors in mm).
+    """
+    from rig.tune import evaluate, load_tune_sessions
+
+    hsessions = load_tune_sessions(holdout, args.cache, progress=progress)
+    held = (evaluate(args.method, result.default_params, hsessions, args.failure_penalty_mm),
+            evaluate(args.method, result.tuned_params, hsessions, args.failure_penalty_mm))
+    print(_table("\nheld-out scenes (never seen by the search):", *held))
+    return held
+
+
+def _changed_lines(result) -> list:
+    """One ``path = tuned (default default)`` line per searched knob."""
+    from recon.params import params_to_dict
+    from rig.tune import tuned_dict
+
+    changed = []
+    tuned_flat, default_flat = tuned_dict(result), params_to_dict(result.default_params)
+    for k in result.knobs:
+        d, t = default_flat, tuned_flat
+        for part in k.path.split("."):
+            d, t = d[part], t[part]
+        changed.append(f"{k.path} = {t!r} (default {d!r})")
+    return changed
+
+
+def _params_header(args, scenes: list, out: Path, result, held) -> str:
+    """The parameter file's comment header: when, on what, the objective, the mean errors (mm) and how to use it."""
+    return "\n".join([
+        f"ctr-bench tune --method {args.method}: {time.strftime('%Y-%m-%d %H:%M')}",
+        f"scenes: {', '.join(str(p) for p in scenes)}",
+        f"objective: mean backbone error, a failed frame = {args.failure_penalty_mm} mm, "
+        f"time tie-break {args.tie_mm} mm per default time per pair",
+        f"tuning scenes: default mean {_fmt(result.default.mean_error_mm, 4)} mm ({result.default.failures} failed), "
+        f"tuned mean {_fmt(result.tuned.mean_error_mm, 4)} mm ({result.tuned.failures} failed)",
+    ] + ([f"held-out scenes: default mean {_fmt(held[0].mean_error_mm, 4)} mm ({held[0].failures} failed), "
+          f"tuned mean {_fmt(held[1].mean_error_mm, 4)} mm ({held[1].failures} failed)"] if held else [])
+      + ["read by: ctr-bench reconstruct SESSION --method " + args.method + f" --params {out.name}",
+         "parameters not listed keep their defaults; tube radii come from the session's robot"])
+
+
+def _write_text_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to a temporary name and rename it: ``path`` is never half a file."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def _summary(args, scenes: list, holdout: list, result, held) -> dict:
+    """``summary.json``: the search's settings, the knobs' ranges, the parameters and every evaluation (mm, s)."""
+    from recon.params import params_to_dict
+    from rig.tune import tuned_dict
+
+    return {
+        "format": "ctr-bench-tune", "version": 1, "method": args.method,
+        "scenes": [str(p) for p in scenes], "holdout": [str(p) for p in holdout],
+        "search": {"maxiter": args.maxiter, "popsize": args.popsize, "seed": args.seed,
+                   "evaluations": len(result.history), "seconds": result.seconds,
+                   "failure_penalty_mm": args.failure_penalty_mm, "tie_mm": args.tie_mm},
+        "knobs": [{"path": k.path, "low": k.low, "high": k.high, "integer": k.integer, "unit": k.unit} for k in result.knobs],
+        "default_params": params_to_dict(result.default_params), "tuned": tuned_dict(result),
+        "default": asdict(result.default), "tuned_evaluation": asdict(result.tuned),
+        "holdout_default": asdict(held[0]) if held else None,
+        "holdout_tuned": asdict(held[1]) if held else None,
+    }
+
+
+def _run(args) -> int:
+    """``ctr-bench tune``: check the options, search, write the parameter file and the report; 0 when done."""
+    from recon.params import dumps_toml
+    from rig.progress import Progress
+    from rig.reconstruct import write_json_atomic
+    from rig.tune import load_tune_sessions, tune, tuned_dict
+    from rig.tuneplot import plot_sensitivity
+
+    from .reconstruct import method_params, one_core
+
+    # every option is checked before anything is rendered or written
+    out, report = _output_paths(args)
+    _check_counts(args)
+    scenes, holdout = _scene_lists(args)
     base = method_params(args)
     knobs = _knobs(args.method, args.knobs)
     one_core()
@@ -125,46 +234,11 @@ def _run(args) -> int:
     if result.sensitivity:
         plot_sensitivity(result, report)
     print(_table("\ntuning scenes (seen by the search):", result.default, result.tuned))
-    held = None
-    if holdout:
-        hsessions = load_tune_sessions(holdout, args.cache, progress=progress)
-        held = (evaluate(args.method, result.default_params, hsessions, args.failure_penalty_mm),
-                evaluate(args.method, result.tuned_params, hsessions, args.failure_penalty_mm))
-        print(_table("\nheld-out scenes (never seen by the search):", *held))
+    held = _score_holdout(args, result, holdout, progress) if holdout else None
     progress.close()
-    changed = []
-    tuned_flat, default_flat = tuned_dict(result), params_to_dict(result.default_params)
-    for k in result.knobs:
-        d, t = default_flat, tuned_flat
-        for part in k.path.split("."):
-            d, t = d[part], t[part]
-        changed.append(f"{k.path} = {t!r} (default {d!r})")
-    header = "\n".join([
-        f"ctr-bench tune --method {args.method}: {time.strftime('%Y-%m-%d %H:%M')}",
-        f"scenes: {', '.join(str(p) for p in scenes)}",
-        f"objective: mean backbone error, a failed frame = {args.failure_penalty_mm} mm, "
-        f"time tie-break {args.tie_mm} mm per default time per pair",
-        f"tuning scenes: default mean {_fmt(result.default.mean_error_mm, 4)} mm ({result.default.failures} failed), "
-        f"tuned mean {_fmt(result.tuned.mean_error_mm, 4)} mm ({result.tuned.failures} failed)",
-    ] + ([f"held-out scenes: default mean {_fmt(held[0].mean_error_mm, 4)} mm ({held[0].failures} failed), "
-          f"tuned mean {_fmt(held[1].mean_error_mm, 4)} mm ({held[1].failures} failed)"] if held else [])
-      + ["read by: ctr-bench reconstruct SESSION --method " + args.method + f" --params {out.name}",
-         "parameters not listed keep their defaults; tube radii come from the session's robot"])
-    tmp = out.with_name(f".{out.name}.tmp")
-    tmp.write_text(dumps_toml(tuned_dict(result), header))
-    tmp.replace(out)
-    write_json_atomic(report / "summary.json", {
-        "format": "ctr-bench-tune", "version": 1, "method": args.method,
-        "scenes": [str(p) for p in scenes], "holdout": [str(p) for p in holdout],
-        "search": {"maxiter": args.maxiter, "popsize": args.popsize, "seed": args.seed,
-                   "evaluations": len(result.history), "seconds": result.seconds,
-                   "failure_penalty_mm": args.failure_penalty_mm, "tie_mm": args.tie_mm},
-        "knobs": [{"path": k.path, "low": k.low, "high": k.high, "integer": k.integer, "unit": k.unit} for k in result.knobs],
-        "default_params": params_to_dict(result.default_params), "tuned": tuned_dict(result),
-        "default": asdict(result.default), "tuned_evaluation": asdict(result.tuned),
-        "holdout_default": asdict(held[0]) if held else None,
-        "holdout_tuned": asdict(held[1]) if held else None,
-    })
+    changed = _changed_lines(result)
+    _write_text_atomic(out, dumps_toml(tuned_dict(result), _params_header(args, scenes, out, result, held)))
+    write_json_atomic(report / "summary.json", _summary(args, scenes, holdout, result, held))
     print("\n" + "\n".join(changed))
     print(f"\nwrote {out} and {report}/ (history.csv: every evaluation, summary.json"
           + ("" if args.no_sensitivity else ", sensitivity*.png") + f") in {time.perf_counter() - t0:.0f} s")
