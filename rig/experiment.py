@@ -30,6 +30,7 @@ import numpy as np
 from twin.scene import _REQUIRED, SceneError, _Table, read_toml
 
 from .actuator import JOINTS, JointValues, SoftLimits
+from .backbone_csv import write_backbone_csv
 
 
 __all__ = ["SequenceError", "ExperimentError", "Step", "Sequence", "load_sequence", "sequence_from_dict",
@@ -557,8 +558,7 @@ class ExperimentRunner:
         if result is not None:
             pts = np.asarray(result.points_world_mm, float)
             self._backbones[index] = pts
-            np.savetxt(self.out / "live" / "frames" / f"{index:06d}.csv", pts, delimiter=",", fmt="%.4f",
-                       header="x_mm,y_mm,z_mm", comments="")
+            write_backbone_csv(self.out / "live" / "frames" / f"{index:06d}.csv", pts)
             rec.update(n_points=int(len(pts)), length_mm=_finite(result.length_mm),
                        tip_world_mm=[float(v) for v in result.tip_world_mm],
                        transition_s_mm=_finite(result.transition_s_mm),

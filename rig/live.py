@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .backbone_csv import read_backbone_csv
+
 __all__ = ["LiveLogger", "prepare_frame", "import_rerun", "NOT_INSTALLED"]
 
 NOT_INSTALLED = "live view off: rerun-sdk is not installed (pip install 'ctr-bench[live]'); the run goes on without it"
@@ -184,7 +186,7 @@ class LiveLogger:
         pts = None
         csv = out_dir / "frames" / f"{fr:06d}.csv"
         if r["status"] == "ok" and csv.exists():
-            pts = np.loadtxt(csv, delimiter=",", skiprows=1, ndmin=2)
+            pts = read_backbone_csv(csv)
         truth_mm, truth_uv = None, {}
         tp = session_dir / "truth" / f"{fr:06d}.npz"
         if tp.exists():

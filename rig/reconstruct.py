@@ -3,7 +3,9 @@
 Outputs (documented in ``docs/outputs.md``), written as the work goes so that an
 interrupted run keeps what it finished:
 
-* ``frames/NNNNNN.csv``: the backbone of each frame, ``x_mm,y_mm,z_mm``, base first;
+* ``frames/NNNNNN.csv``: the backbone of each frame, ``s_mm,x_mm,y_mm,z_mm,tx,ty,tz``, base first
+  (:mod:`rig.backbone_csv`);
+* ``frames.csv``: one row per frame (time, status, reason, figures);
 * ``backbones.npz``: all backbones (``frame_NNNNNN`` arrays) and the frame indices;
 * ``summary.json``: method, parameters, per-frame results and aggregates.
 
@@ -27,6 +29,7 @@ from recon.methods import get_method
 from recon.metrics import backbone_errors
 from recon.params import params_to_dict
 from recon.selfcheck import SelfCheckParams, check_backbone, prepare_selfcheck
+from rig.backbone_csv import FrameTable, write_backbone_csv
 
 from .session import Session, SessionError
 
@@ -309,46 +312,48 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
     wanted = set(frames) if frames is not None else None
     todo = [f for f in session.frames if wanted is None or f.index in wanted]
     records, backbones = [], {}
-    for n, fr in enumerate(todo):
-        rec = {"frame": fr.index, "t_s": fr.t_s, "status": "ok", "reason": None}
-        # Whatever goes wrong with one frame is that frame's failure, with a
-        # one-line reason; the run goes on and keeps what it has written.
-        try:
-            images = session.frame_images(fr.index)
-            for cam, img in images.items():
-                c = session.rig[cam]
-                if img.shape != (c.height, c.width):
-                    raise FrameError(f"image is {img.shape[1]}x{img.shape[0]} but the calibration is {c.width}x{c.height}", cam)
-            t0 = time.perf_counter()
-            result = reconstruct(images)
-            rec["ms"] = 1e3 * (time.perf_counter() - t0)
-            pts = np.asarray(result.points_world_mm, float)
-            if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] == 0 or not np.all(np.isfinite(pts)):
-                raise FrameError("the reconstruction has no valid backbone point")
-        except Exception as exc:  # noqa: BLE001 - per-frame isolation is the point
-            if os.environ.get("CTR_BENCH_DEBUG") and not isinstance(exc, (FrameError, SessionError)):
-                raise  # a developer asked to see where an unforeseen failure comes from
-            rec.pop("ms", None)
-            rec.update(status="failed", reason=_one_line(exc))
-        if rec["status"] == "ok":
-            # The fast method's temporal check: recorded, the frame stays as the self-check judges it.
-            rec["jump_flag"] = bool(getattr(result, "jump_flag", False))
-            rec["jump_reason"] = getattr(result, "jump_reason", None) if rec["jump_flag"] else None
-            if check_model is not None:
-                selfcheck_record(rec, check_model, images, pts, radii_mm, selfcheck)
-            own = getattr(result, "suspect_reason", None)
-            if own and rec["status"] == "ok":  # the method's own doubt (recorded when the check passed)
-                rec.update(status="suspect", reason=str(own))
-            backbones[fr.index] = pts
-            np.savetxt(out / "frames" / f"{fr.index:06d}.csv", pts, delimiter=",", fmt="%.4f", header="x_mm,y_mm,z_mm", comments="")
-            _describe(rec, result, pts)
-            _score(rec, session, fr.index, pts)
-        records.append(rec)
-        summary = summarize(records, method, params, session.dir, mm_px, selfcheck)
-        write_json_atomic(out / "summary.json", summary)
-        if progress:
-            post = {"ms": f"{rec['ms']:.0f}"} if rec["status"] == "ok" else {rec["status"]: fr.index}
-            progress("reconstruct", n + 1, len(todo), **post)
+    with FrameTable(out / "frames.csv") as table:
+        for n, fr in enumerate(todo):
+            rec = {"frame": fr.index, "t_s": fr.t_s, "status": "ok", "reason": None}
+            # Whatever goes wrong with one frame is that frame's failure, with a
+            # one-line reason; the run goes on and keeps what it has written.
+            try:
+                images = session.frame_images(fr.index)
+                for cam, img in images.items():
+                    c = session.rig[cam]
+                    if img.shape != (c.height, c.width):
+                        raise FrameError(f"image is {img.shape[1]}x{img.shape[0]} but the calibration is {c.width}x{c.height}", cam)
+                t0 = time.perf_counter()
+                result = reconstruct(images)
+                rec["ms"] = 1e3 * (time.perf_counter() - t0)
+                pts = np.asarray(result.points_world_mm, float)
+                if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] == 0 or not np.all(np.isfinite(pts)):
+                    raise FrameError("the reconstruction has no valid backbone point")
+            except Exception as exc:  # noqa: BLE001 - per-frame isolation is the point
+                if os.environ.get("CTR_BENCH_DEBUG") and not isinstance(exc, (FrameError, SessionError)):
+                    raise  # a developer asked to see where an unforeseen failure comes from
+                rec.pop("ms", None)
+                rec.update(status="failed", reason=_one_line(exc))
+            if rec["status"] == "ok":
+                # The fast method's temporal check: recorded, the frame stays as the self-check judges it.
+                rec["jump_flag"] = bool(getattr(result, "jump_flag", False))
+                rec["jump_reason"] = getattr(result, "jump_reason", None) if rec["jump_flag"] else None
+                if check_model is not None:
+                    selfcheck_record(rec, check_model, images, pts, radii_mm, selfcheck)
+                own = getattr(result, "suspect_reason", None)
+                if own and rec["status"] == "ok":  # the method's own doubt (recorded when the check passed)
+                    rec.update(status="suspect", reason=str(own))
+                backbones[fr.index] = pts
+                write_backbone_csv(out / "frames" / f"{fr.index:06d}.csv", pts)
+                _describe(rec, result, pts)
+                _score(rec, session, fr.index, pts)
+            records.append(rec)
+            table.add(rec)
+            summary = summarize(records, method, params, session.dir, mm_px, selfcheck)
+            write_json_atomic(out / "summary.json", summary)
+            if progress:
+                post = {"ms": f"{rec['ms']:.0f}"} if rec["status"] == "ok" else {rec["status"]: fr.index}
+                progress("reconstruct", n + 1, len(todo), **post)
     np.savez_compressed(
         out / "backbones.npz",
         frames=np.array(sorted(backbones), dtype=np.int64),

@@ -28,6 +28,8 @@ from PIL import Image, ImageDraw, ImageFont
 from recon.backbone import arc_length
 from recon.tubemesh import tube_mesh, radii_along
 
+from .backbone_csv import read_backbone_csv
+
 __all__ = [
     "build_report",
     "load_run",
@@ -701,7 +703,7 @@ def load_run(out_dir) -> RunData:
     else:  # an interrupted run: the CSVs are written frame by frame
         for p in sorted((out / "frames").glob("[0-9]*.csv")):
             try:
-                backbones[int(p.stem)] = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2).reshape(-1, 3)
+                backbones[int(p.stem)] = read_backbone_csv(p)
             except ValueError:
                 pass
     run = RunData(out=out, summary=summary, backbones=backbones)

@@ -1,12 +1,14 @@
 """A short twin scene rendered into a session and reconstructed with the paper's method, scored against the truth."""
 from __future__ import annotations
 
+import csv
 import json
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from rig.backbone_csv import read_backbone_csv
 from rig.commands.render import render_scene_to
 from rig.reconstruct import reconstruct_session
 
@@ -48,8 +50,19 @@ def test_outputs_written(run):
     summary, out = run
     on_disk = json.loads((out / "summary.json").read_text())
     assert on_disk["failed_frames"] == 0 and on_disk["voxel_edge_mm_median"] == pytest.approx(summary["voxel_edge_mm_median"])
+    table = list(csv.DictReader((out / "frames.csv").open()))
+    assert [int(t["frame"]) for t in table] == [r["frame"] for r in summary["per_frame"]]
+    assert [t["status"] for t in table] == [r["status"] for r in summary["per_frame"]]
+    assert [float(t["t_s"]) for t in table] == pytest.approx([r["t_s"] for r in summary["per_frame"]])
     for r in summary["per_frame"]:
-        pts = np.loadtxt(out / "frames" / f"{r['frame']:06d}.csv", delimiter=",", skiprows=1)
+        path = out / "frames" / f"{r['frame']:06d}.csv"
+        assert path.read_text().splitlines()[0] == "s_mm,x_mm,y_mm,z_mm,tx,ty,tz"
+        rows = np.loadtxt(path, delimiter=",", skiprows=1)
+        s, pts, tangent = rows[:, 0], rows[:, 1:4], rows[:, 4:7]
         assert pts.shape == (r["n_points"], 3)
+        np.testing.assert_allclose(pts, read_backbone_csv(path))
+        assert s[0] == 0.0 and np.all(np.diff(s) > 0) and s[-1] == pytest.approx(r["length_mm"], abs=0.01)
+        np.testing.assert_allclose(np.linalg.norm(tangent, axis=1), 1.0, atol=1e-5)
+        assert np.all(np.einsum("ij,ij->i", tangent[1:], np.diff(pts, axis=0)) > 0)  # along the curve, base to tip
         # Base first: the backbone starts where the robot leaves the actuation unit (world origin).
         assert np.linalg.norm(pts[0]) <= 2.0 * np.linalg.norm(r["voxel_size_mm"])

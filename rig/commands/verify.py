@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rig.backbone_csv import read_backbone_csv
+
 
 @dataclass
 class Dataset:
@@ -63,7 +65,7 @@ def _recon_backbones(recon: Path, summary: dict) -> dict:
             continue
         p = recon / "frames" / f"{int(rec['frame']):06d}.csv"
         if p.exists():
-            out[int(rec["frame"])] = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+            out[int(rec["frame"])] = read_backbone_csv(p)
     return out
 
 
