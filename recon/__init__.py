@@ -4,9 +4,9 @@ Pure functions over numpy arrays with frozen parameter dataclasses. This package
 imports neither ``twin`` nor ``rig``: it runs unchanged on real frames.
 """
 
-from importlib import import_module as _import_module
+from ._lazy import lazy_exports
 
-#: Public name -> module that owns it.
+#: Public name -> module that owns it (loaded on first use: importing the package alone does not pull in numba and the methods).
 _EXPORTS = {
     "Camera": "recon.camera", "invert_transform": "recon.camera",
     "RigCalibration": "recon.rigcal", "load_rig_calibration": "recon.rigcal", "save_rig_calibration": "recon.rigcal",
@@ -18,14 +18,4 @@ _EXPORTS = {
 }
 
 __all__ = sorted(_EXPORTS)
-
-
-def __getattr__(name: str):
-    # Loaded on first use: importing recon (e.g. for recon.camera alone) does not pull in numba and the methods.
-    if name in _EXPORTS:
-        return getattr(_import_module(_EXPORTS[name]), name)
-    raise AttributeError(f"module 'recon' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
