@@ -12,6 +12,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from . import distortion
+
+# The distortion formula has one owner (recon.distortion); these are its compiled forms.
+_distort_nb = njit(cache=True, nogil=True, inline="always")(distortion.distort_xy)
+_untilt_nb = njit(cache=True, nogil=True, inline="always")(distortion.untilt_xy)
+_undistort_step_nb = njit(cache=True, nogil=True, inline="always")(distortion.undistort_step)
+
 __all__ = ["profile_edges_nb", "profiles_at_seeds_nb", "profile_values_nb", "coarse_foreground_nb", "bfs_path_nb", "rays_nb",
            "ridge_hits_nb", "near_any_nb"]
 
@@ -275,28 +282,23 @@ def bfs_path_nb(mask, sy, sx):
 
 
 @njit(cache=True, nogil=True)
-def rays_nb(uv, K, dist, R, baseline, e1, e2, epipole, iterations):
+def rays_nb(uv, K, d, m_inv, R, baseline, e1, e2, epipole, iterations):
     """Pixels -> unnormalized world ray directions, epipolar angles and conditioning, in one pass.
 
-    Same as ``_pixels_to_normalized`` + ``R @ [x, y, 1]`` + :meth:`EpipolarFrame.phi`
-    + :func:`recon.epipolar.conditioning` (tangent by central differences).
+    Same as :func:`recon.distortion.undistort_normalized` with ``iterations`` fixed-point steps
+    (``d``: the 14 coefficients, ``m_inv``: the inverse tilt matrix) + ``R @ [x, y, 1]`` +
+    :meth:`EpipolarFrame.phi` + :func:`recon.epipolar.conditioning` (tangent by central differences).
     """
     n = uv.shape[0]
     xy = np.empty((n, 2))
-    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
     for i in range(n):
-        y0 = (uv[i, 1] - K[1, 2]) / K[1, 1]
-        x0 = (uv[i, 0] - K[0, 2] - K[0, 1] * y0) / K[0, 0]
+        yp = (uv[i, 1] - K[1, 2]) / K[1, 1]
+        xp = (uv[i, 0] - K[0, 2] - K[0, 1] * yp) / K[0, 0]
+        x0, y0 = _untilt_nb(xp, yp, d, m_inv)
         x = x0
         y = y0
         for _ in range(iterations):
-            r2 = x * x + y * y
-            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            xy2 = 2.0 * x * y
-            xn = (x0 - (p1 * xy2 + p2 * (r2 + 2.0 * x * x))) / radial
-            yn = (y0 - (p1 * (r2 + 2.0 * y * y) + p2 * xy2)) / radial
-            x = xn
-            y = yn
+            x, y = _undistort_step_nb(x, y, x0, y0, d)
         xy[i, 0] = x
         xy[i, 1] = y
     dirs = np.empty((n, 3))
@@ -592,23 +594,18 @@ def tip_along_axis_nb(frame, stack, coeff, p_end, t_end, radius_px, threshold, b
 
 
 @njit(cache=True, nogil=True)
-def project_nb(P, K, dist, T):
-    """World points (n, 3) -> distorted pixels (n, 2) and depths (n,), as :meth:`Camera.project`."""
+def project_nb(P, K, d, m, T):
+    """World points (n, 3) -> distorted pixels (n, 2) and depths (n,), as :meth:`Camera.project`
+    (``d``: the 14 distortion coefficients, ``m``: the tilt matrix)."""
     n = P.shape[0]
     uv = np.empty((n, 2))
     z = np.empty(n)
-    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
     for i in range(n):
         xc = T[0, 0] * P[i, 0] + T[0, 1] * P[i, 1] + T[0, 2] * P[i, 2] + T[0, 3]
         yc = T[1, 0] * P[i, 0] + T[1, 1] * P[i, 1] + T[1, 2] * P[i, 2] + T[1, 3]
         zc = T[2, 0] * P[i, 0] + T[2, 1] * P[i, 1] + T[2, 2] * P[i, 2] + T[2, 3]
         z[i] = zc
-        x = xc / zc
-        y = yc / zc
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        xd, yd = _distort_nb(xc / zc, yc / zc, d, m)
         uv[i, 0] = K[0, 0] * xd + K[0, 1] * yd + K[0, 2]
         uv[i, 1] = K[1, 1] * yd + K[1, 2]
     return uv, z

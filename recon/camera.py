@@ -1,4 +1,4 @@
-"""Pinhole camera with OpenCV (Brown-Conrady) lens distortion.
+"""Pinhole camera with OpenCV's lens distortion (4 to 14 coefficients, :mod:`recon.distortion`).
 
 One model shared by the twin (which renders through it) and the pipeline (which
 reconstructs through it), so rendered images obey exactly the model that
@@ -11,13 +11,16 @@ Conventions
 * Camera frame: OpenCV (x right, y down, z forward).
 * ``T_cam_world`` is the 4x4 homogeneous transform that maps world points (mm)
   into the camera frame (mm): ``X_cam = T_cam_world @ X_world``.
-* Distortion coefficients ``dist = (k1, k2, p1, p2, k3)`` as in OpenCV.
+* Distortion coefficients ``dist`` as in OpenCV: ``k1 k2 p1 p2 [k3 [k4 k5 k6 [s1 s2 s3 s4
+  [tau_x tau_y]]]]`` (5, 8, 12 or 14 values; 4 gain ``k3 = 0``).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+
+from .distortion import as_coefficients, distort_normalized, padded, tilt_matrix, undistort_normalized
 
 __all__ = [
     "Camera",
@@ -36,66 +39,6 @@ def _as_points(points, dim: int, name: str) -> np.ndarray:
     if arr.ndim != 2 or arr.shape[1] != dim:
         raise ValueError(f"{name} must have shape (n, {dim}), got {np.shape(points)}")
     return arr
-
-
-def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
-    """Apply Brown-Conrady distortion to ideal normalized coordinates.
-
-    Parameters
-    ----------
-    xy : (n, 2) array
-        Ideal (pinhole) normalized image coordinates x/z, y/z (unitless).
-    dist : (5,) array
-        ``k1, k2, p1, p2, k3``.
-
-    Returns
-    -------
-    (n, 2) array
-        Distorted normalized coordinates (unitless).
-    """
-    k1, k2, p1, p2, k3 = dist
-    x = xy[:, 0]
-    y = xy[:, 1]
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    return np.stack([xd, yd], axis=1)
-
-
-def undistort_normalized(xy_d: np.ndarray, dist: np.ndarray, iterations: int = 20) -> np.ndarray:
-    """Invert :func:`distort_normalized` by fixed-point iteration (as OpenCV does).
-
-    Parameters
-    ----------
-    xy_d : (n, 2) array
-        Distorted normalized coordinates (unitless).
-    dist : (5,) array
-        ``k1, k2, p1, p2, k3``.
-    iterations : int
-        Fixed-point iterations; 20 reach < 1e-9 for lens distortions of a few
-        percent at the image corner.
-
-    Returns
-    -------
-    (n, 2) array
-        Ideal normalized coordinates.
-    """
-    if not np.any(dist):
-        return xy_d.copy()
-    k1, k2, p1, p2, k3 = dist
-    x = xy_d[:, 0].copy()
-    y = xy_d[:, 1].copy()
-    x0 = xy_d[:, 0]
-    y0 = xy_d[:, 1]
-    for _ in range(iterations):
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-        dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-        x = (x0 - dx) / radial
-        y = (y0 - dy) / radial
-    return np.stack([x, y], axis=1)
 
 
 def invert_transform(T: np.ndarray) -> np.ndarray:
@@ -153,8 +96,8 @@ class Camera:
         Image size in pixels.
     K : (3, 3) array
         Intrinsic matrix (pixels).
-    dist : (5,) array
-        OpenCV distortion ``k1, k2, p1, p2, k3``.
+    dist : (5,), (8,), (12,) or (14,) array
+        OpenCV distortion coefficients (:mod:`recon.distortion`); 4 are padded with ``k3 = 0``.
     T_cam_world : (4, 4) array
         World (mm) -> camera (mm).
     """
@@ -168,11 +111,7 @@ class Camera:
 
     def __post_init__(self):
         K = np.asarray(self.K, dtype=np.float64)
-        dist = np.zeros(5)
-        d = np.asarray(self.dist, dtype=np.float64).ravel()
-        if d.size > 5:
-            raise ValueError(f"camera {self.name!r}: at most 5 distortion coefficients, got {d.size}")
-        dist[: d.size] = d
+        dist = as_coefficients(self.dist, f"camera {self.name!r}")
         T = np.asarray(self.T_cam_world, dtype=np.float64)
         if K.shape != (3, 3):
             raise ValueError(f"camera {self.name!r}: K must be 3x3, got {K.shape}")
@@ -185,8 +124,22 @@ class Camera:
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", dist)
         object.__setattr__(self, "T_cam_world", T)
+        d14 = padded(dist)
+        d14.setflags(write=False)
+        object.__setattr__(self, "_d14", d14)
         object.__setattr__(self, "width", int(self.width))
         object.__setattr__(self, "height", int(self.height))
+
+    # ------------------------------------------------------------ distortion
+    @property
+    def dist14(self) -> np.ndarray:
+        """The distortion as all 14 OpenCV coefficients (zeros appended), read-only."""
+        return self._d14
+
+    @property
+    def tilt(self) -> tuple:
+        """The tilted-sensor matrix and its inverse (:func:`recon.distortion.tilt_matrix`)."""
+        return tilt_matrix(float(self._d14[12]), float(self._d14[13]))
 
     # ------------------------------------------------------------------ pose
     @property
@@ -249,7 +202,7 @@ class Camera:
         with np.errstate(divide="ignore", invalid="ignore"):
             xy = pc[:, :2] / z[:, None]
         xy[z <= 1e-9] = np.nan
-        return self.normalized_to_pixels(distort_normalized(xy, self.dist) if np.any(self.dist) else xy), z
+        return self.normalized_to_pixels(distort_normalized(xy, self.dist)), z
 
     def normalized_to_pixels(self, xy: np.ndarray) -> np.ndarray:
         """Distorted normalized coordinates -> pixels."""

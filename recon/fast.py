@@ -35,6 +35,7 @@ import numpy as np
 from .background import EigenBackground, EigenBackgroundParams, fit_eigenbackground, to_gray
 from .backbone import back_to_base_plane, back_to_border
 from .carving import rig_center
+from .distortion import undistort_normalized
 from .epipolar import EpipolarFrame, align_dp, conditioning, monotonic, triangulate_rays
 from .errors import FrameError
 from .methods import Method, register_method
@@ -359,26 +360,15 @@ class _ViewSamples:
 
 
 def _pixels_to_normalized(cam, uv: np.ndarray, iterations: int = 5) -> np.ndarray:
-    """:meth:`Camera.pixels_to_normalized` with fewer fixed-point iterations.
+    """:meth:`Camera.pixels_to_normalized` with at most 5 fixed-point iterations.
 
     Each iteration shrinks the error by about ``3 |k1| r^2`` (~1 % at this
-    rig's image corners), so 5 reach ~1e-10, like the camera's 20.
+    rig's image corners), so 5 reach ~1e-10.
     """
     K = cam.K
     y = (uv[:, 1] - K[1, 2]) / K[1, 1]
     x = (uv[:, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
-    dist = cam.dist
-    if not np.any(dist):
-        return np.stack([x, y], axis=1)
-    k1, k2, p1, p2, k3 = dist
-    x0, y0 = x, y
-    for _ in range(iterations):
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xy2 = 2.0 * x * y
-        x = (x0 - (p1 * xy2 + p2 * (r2 + 2.0 * x * x))) / radial
-        y = (y0 - (p1 * (r2 + 2.0 * y * y) + p2 * xy2)) / radial
-    return np.stack([x, y], axis=1)
+    return undistort_normalized(np.stack([x, y], axis=1), cam.dist, max_iterations=iterations)
 
 
 def _view_samples(model: FastModel, name: str, vc: ViewCenterline, step: float) -> _ViewSamples:
@@ -390,7 +380,7 @@ def _view_samples(model: FastModel, name: str, vc: ViewCenterline, step: float) 
     R = model.R_world_cam[name]
     if subpixel.USE_NUMBA:
         ef = model.epipolar
-        d, phi, cond = rays_nb(uv, cam.K, cam.dist, R, ef.baseline, ef.e1, ef.e2, model.epipoles[name], 5)
+        d, phi, cond = rays_nb(uv, cam.K, cam.dist14, cam.tilt[1], R, ef.baseline, ef.e1, ef.e2, model.epipoles[name], 5)
         return _ViewSamples(s=s, uv=uv, dirs=d, phi=phi, cond=cond)
     xy = _pixels_to_normalized(cam, uv)
     d = xy @ R[:, :2].T + R[:, 2]  # unnormalized ray directions (world)
@@ -412,7 +402,7 @@ def _phi_at(model: FastModel, name: str, uv: np.ndarray) -> np.ndarray:
     R = model.R_world_cam[name]
     if subpixel.USE_NUMBA:
         ef = model.epipolar
-        return rays_nb(uv, cam.K, cam.dist, R, ef.baseline, ef.e1, ef.e2, model.epipoles[name], 5)[1]
+        return rays_nb(uv, cam.K, cam.dist14, cam.tilt[1], R, ef.baseline, ef.e1, ef.e2, model.epipoles[name], 5)[1]
     xy = _pixels_to_normalized(cam, uv)
     return model.epipolar.phi(xy @ R[:, :2].T + R[:, 2])
 
@@ -446,7 +436,7 @@ def _tip_mismatch(model: FastModel, views: dict, sa: _ViewSamples, sb: _ViewSamp
 
 def _project(cam, P: np.ndarray):
     if subpixel.USE_NUMBA:
-        return project_nb(P, cam.K, cam.dist, cam.T_cam_world)
+        return project_nb(P, cam.K, cam.dist14, cam.tilt[0], cam.T_cam_world)
     return cam.project(P)
 
 

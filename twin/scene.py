@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from recon.camera import Camera, look_at, rotation_matrix
+from recon.distortion import MODEL_SIZES
 from recon.rigcal import RigCalibration
 
 from .robot import Joints, Robot, Tube
@@ -326,6 +327,13 @@ def orbit_rotation(orbit_deg) -> np.ndarray:
     return R
 
 
+_OPENCV_COUNTS = "must hold 4, 5, 8, 12 or 14 OpenCV coefficients (k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4 tau_x tau_y)"
+
+
+def _opencv_count(v) -> bool:
+    return len(v) in MODEL_SIZES
+
+
 def _orbited_mount(name: str, target: np.ndarray, distance_mm: float, orbit_deg) -> tuple:
     """Eye (world mm) and image-down direction of camera ``name`` orbited about the target."""
     back, down = (np.asarray(v) for v in _NOMINAL_MOUNTS[name])
@@ -338,7 +346,7 @@ def _parse_rig(g: _Table, width: int, height: int, base, axis) -> RigCalibration
     focal = g.get("focal_length_mm", 12.0, float, *_POS)
     pixel = g.get("pixel_size_um", 4.65, float, *_POS)
     target = np.asarray(g.get("target_mm", [45.0, 0.0, 0.0], ("vec", 3)))
-    dist_default = g.get("distortion", [0.0] * 5, ("vec", 5))
+    dist_default = g.get("distortion", [0.0] * 5, ("vec", None), _opencv_count, _OPENCV_COUNTS)
     # Nominal orthogonal mounts: the top camera looks down (-z) with image-down = world -y;
     # the side camera looks along +y with image-down = world -z (so world up is image up).
     nominal = {
@@ -356,7 +364,7 @@ def _parse_rig(g: _Table, width: int, height: int, base, axis) -> RigCalibration
         rot = c.get("rotation_deg", [0.0, 0.0, 0.0], ("vec", 3))
         off = c.get("offset_mm", [0.0, 0.0, 0.0], ("vec", 3))
         pp = c.get("principal_offset_px", [0.0, 0.0], ("vec", 2))
-        dist = c.get("distortion", dist_default, ("vec", 5))
+        dist = c.get("distortion", dist_default, ("vec", None), _opencv_count, _OPENCV_COUNTS)
         f_scale = c.get("focal_scale", 1.0, float, *_POS)
         c.done()
         f_px = cam_focal / (pixel * 1e-3)

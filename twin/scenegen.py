@@ -137,7 +137,7 @@ def _distortion(rng) -> list:
 
 def _monotonic(dist, r_max: float) -> bool:
     """Whether the radial distortion keeps growing with the radius up to ``r_max`` (no fold-over)."""
-    k1, k2, _, _, k3 = dist
+    k1, k2, _, _, k3 = dist[:5]
     r = np.linspace(0.0, r_max, 200)
     r2 = r * r
     slope = 1.0 + 3 * k1 * r2 + 5 * k2 * r2 * r2 + 7 * k3 * r2**3
