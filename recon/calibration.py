@@ -39,7 +39,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .camera import Camera, distort_normalized, invert_transform
+from .camera import Camera, invert_transform
+from .distortion import COEFFICIENT_NAMES, MODEL_SIZES, distort_xy, padded, tilt_matrix
 from .rigcal import RigCalibration
 
 __all__ = [
@@ -53,7 +54,9 @@ __all__ = [
     "CalibrationReport",
     "CalibrationImages",
     "COMMON_BOARDS",
-    "DISTORTION_MODELS",
+    "MODEL_TERMS",
+    "parse_terms",
+    "calibration_flags",
     "IMAGE_SUFFIXES",
     "detect_board",
     "detect_images",
@@ -76,15 +79,40 @@ __all__ = [
 CAMERAS = ("side", "top")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
 
-#: Distortion models: the estimated terms of ``k1 k2 p1 p2 k3`` and OpenCV's flags holding the others at 0.
-DISTORTION_MODELS = {
-    "k1 k2 p1 p2 k3": 0,
-    "k1 k2 p1 p2": cv2.CALIB_FIX_K3,
-    "k1 k2 k3": cv2.CALIB_ZERO_TANGENT_DIST,
-    "k1 k2": cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3,
-    "k1": cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3 | cv2.CALIB_FIX_K2,
-    "none": cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3 | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K1,
-}
+#: Each OpenCV distortion model (:mod:`recon.distortion`): its coefficient count -> its terms.
+MODEL_TERMS = {n: COEFFICIENT_NAMES[:n] for n in MODEL_SIZES}
+#: Terms OpenCV estimates or fixes together (one flag each), in their order of significance.
+_TERM_GROUPS = (("k1",), ("k2",), ("p1", "p2"), ("k3",), ("k4",), ("k5",), ("k6",), ("s1", "s2", "s3", "s4"), ("tau_x", "tau_y"))
+_FIX_FLAG = {"k1": cv2.CALIB_FIX_K1, "k2": cv2.CALIB_FIX_K2, "p1": cv2.CALIB_ZERO_TANGENT_DIST, "k3": cv2.CALIB_FIX_K3,
+             "k4": cv2.CALIB_FIX_K4, "k5": cv2.CALIB_FIX_K5, "k6": cv2.CALIB_FIX_K6, "s1": cv2.CALIB_FIX_S1_S2_S3_S4,
+             "tau_x": cv2.CALIB_FIX_TAUX_TAUY}
+_MODEL_FLAG = {4: cv2.CALIB_FIX_K3, 5: 0, 8: cv2.CALIB_RATIONAL_MODEL,
+               12: cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL,
+               14: cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL | cv2.CALIB_TILTED_MODEL}
+
+
+def parse_terms(text: str, model: int) -> tuple:
+    """The estimated distortion terms ``text`` (e.g. ``"k1 k2 p1 p2"``, ``"none"``) of the ``model``-coefficient
+    OpenCV model; ``ValueError`` naming ``--distortion`` for a term outside the model or a group split apart."""
+    terms = () if text.strip() == "none" else tuple(text.replace(",", " ").split())
+    allowed = MODEL_TERMS[model]
+    bad = [t for t in terms if t not in allowed]
+    if bad:
+        raise ValueError(f"--distortion: {' '.join(bad)} not in the {model}-coefficient model ({' '.join(allowed)})")
+    for group in _TERM_GROUPS:
+        if 0 < sum(t in terms for t in group) < len(group):
+            raise ValueError(f"--distortion: {' '.join(group)} are estimated together or not at all (OpenCV)")
+    return tuple(t for t in allowed if t in terms)
+
+
+def calibration_flags(terms: tuple, model: int) -> int:
+    """``cv2.calibrateCamera`` flags estimating ``terms`` of the ``model``-coefficient model, the others held."""
+    flags = _MODEL_FLAG[model]
+    for group in _TERM_GROUPS:
+        if group[0] in MODEL_TERMS[model] and group[0] not in terms:
+            flags |= _FIX_FLAG[group[0]]
+    return flags
+
 
 #: Inner-corner sizes tried when the given board is found nowhere (to suggest the right one).
 COMMON_BOARDS = (
@@ -171,13 +199,15 @@ class CalibrationParams:
         Sub-pixel corner refinement: the saddle point of a quadratic fitted to the
         smoothed image (unbiased for any corner angle, no pixel locking), or OpenCV's
         ``cornerSubPix``.
+    model : int
+        The OpenCV distortion model: 4 (k1 k2 p1 p2), 5 (+ k3), 8 (+ k4 k5 k6, rational),
+        12 (+ s1..s4, thin prism) or 14 (+ tau_x tau_y, tilted sensor) coefficients.
     distortion : str
-        Which of k1 k2 p1 p2 k3 are estimated: ``"auto"`` (all five, then the tangential
-        pair and k3 are held at 0 when they are not significant, |value| < 3 standard
-        deviations: a narrow lens barely separates p1 p2 from the principal point, nor
-        k3 from k2, and estimating noise there costs accuracy), or one of
-        :data:`DISTORTION_MODELS` (``"k1 k2 p1 p2 k3"``, ``"k1 k2 p1 p2"``,
-        ``"k1 k2 k3"``, ``"k1 k2"``, ``"k1"``, ``"none"``).
+        Which of the model's terms are estimated: ``"auto"`` (all, then each group beyond
+        k1 k2 - the tangential pair, k3, k4, k5, k6, the prism terms, the tilt - is held at 0
+        when it is not significant, every |value| < 3 standard deviations: a narrow lens
+        barely separates p1 p2 from the principal point, nor k3 from k2, and estimating
+        noise there costs accuracy), ``"none"``, or the terms, e.g. ``"k1 k2 p1 p2"``.
     intrinsics_from_stereo : bool
         Also use the stereo images for each camera's intrinsics.
     joint_refinement : bool
@@ -201,6 +231,7 @@ class CalibrationParams:
     outlier_factor: float = 3.0
     outlier_floor_px: float = 0.3
     refine: str = "saddle"
+    model: int = 5
     distortion: str = "auto"
     intrinsics_from_stereo: bool = True
     joint_refinement: bool = True
@@ -211,10 +242,12 @@ class CalibrationParams:
     def __post_init__(self):
         if self.refine not in ("saddle", "cornersubpix", "none"):
             raise ValueError(f"refine must be 'saddle', 'cornersubpix' or 'none', got {self.refine!r}")
-        if self.distortion != "auto" and self.distortion not in DISTORTION_MODELS:
-            raise ValueError(f"distortion must be 'auto' or one of {', '.join(repr(k) for k in DISTORTION_MODELS)}, got {self.distortion!r}")
+        if self.model not in MODEL_SIZES:
+            raise ValueError(f"--model: OpenCV models have {', '.join(map(str, MODEL_SIZES))} coefficients, got {self.model!r}")
+        if self.distortion != "auto":
+            parse_terms(self.distortion, self.model)
         if self.min_views < 3:
-            raise ValueError(f"min_views must be >= 3, got {self.min_views}")
+            raise ValueError(f"--min-views must be at least 3, got {self.min_views}")
         if self.min_stereo_pairs < 1:
             raise ValueError(f"min_stereo_pairs must be >= 1, got {self.min_stereo_pairs}")
 
@@ -633,6 +666,11 @@ class WorldFrame:
     side_check: ViewRecord | None = None
 
 
+def _coefficients_text(dist) -> str:
+    """``k1 +0.0123 k2 ... k3 ...`` and, for the longer models, their further coefficients."""
+    return " ".join(f"{n} {v:+.5f}" if n[0] == "p" else f"{n} {v:+.4f}" for n, v in zip(COEFFICIENT_NAMES, np.ravel(dist)))
+
+
 def _frobenius_rotation_deg(R: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
 
@@ -722,8 +760,7 @@ class CalibrationReport:
                 f"{n:>5}: {len(c.used)} views used, {len(c.rejected)} rejected, corners reach {100 * c.coverage():.0f} % of the image; "
                 f"RMS {c.rms_px:.3f} px; "
                 f"fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f}; "
-                f"k1 {c.dist[0]:+.4f} k2 {c.dist[1]:+.4f} p1 {c.dist[2]:+.5f} p2 {c.dist[3]:+.5f} k3 {c.dist[4]:+.4f} "
-                f"(estimated: {c.model})"
+                f"{_coefficients_text(c.dist)} (estimated: {c.model})"
             )
             for v in c.rejected:
                 lines.append(f"         rejected {v.name}: {v.reason}")
@@ -825,19 +862,19 @@ def _require_views(k: int, records: dict, name: str, board: BoardSpec, params: C
     )
 
 
-def _identifiable_model(model: str, D: np.ndarray, std: dict) -> str:
-    """The distortion model ``model`` (e.g. ``"k1 k2 p1 p2 k3"``) less the terms the views cannot tell from
-    zero: coefficients ``D`` (k1 k2 p1 p2 k3) within 3 standard deviations ``std`` of it."""
-    terms = model.split()
-    if abs(D[2]) < 3 * std["p1"] and abs(D[3]) < 3 * std["p2"]:
-        terms = [t for t in terms if t not in ("p1", "p2")]
-    if abs(D[4]) < 3 * std["k3"]:
-        terms.remove("k3")
-    return " ".join(terms)
+def _identifiable_model(terms: tuple, D: np.ndarray, std: dict) -> tuple:
+    """The estimated ``terms`` less the groups beyond k1 k2 that the views cannot tell from zero:
+    every coefficient of ``D`` (OpenCV order) in the group within 3 standard deviations ``std`` of it."""
+    D = np.concatenate([np.ravel(D), np.zeros(14)])
+    keep = set(terms)
+    for group in _TERM_GROUPS[2:]:
+        if group[0] in keep and all(abs(D[COEFFICIENT_NAMES.index(t)]) < 3 * std[t] for t in group):
+            keep -= set(group)
+    return tuple(t for t in terms if t in keep)
 
 
 def calibrate_camera(detections: list, board: BoardSpec, name: str, params: CalibrationParams | None = None) -> CameraCalibration:
-    """One camera's intrinsics (``cv2.calibrateCamera``, model k1 k2 p1 p2 k3) with view rejection.
+    """One camera's intrinsics (``cv2.calibrateCamera``, the OpenCV model ``params.model``) with view rejection.
 
     Views not found or blurred are rejected up front; then views whose board is too
     oblique, then reprojection outliers one at a time (recalibrating after each).
@@ -854,21 +891,22 @@ def calibrate_camera(detections: list, board: BoardSpec, name: str, params: Cali
     obj = board.object_points().astype(np.float32)
 
     _require_views(len(views), records, name, board, params)
-    model = "k1 k2 p1 p2 k3" if params.distortion == "auto" else params.distortion
+    terms = MODEL_TERMS[params.model] if params.distortion == "auto" else parse_terms(params.distortion, params.model)
+    n_dist = max(5, params.model)
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     std = {}
 
     def run(vs):
         out = cv2.calibrateCameraExtended(
             [obj] * len(vs), [v.corners.astype(np.float32) for v in vs], size, None, None,
-            flags=DISTORTION_MODELS[model], criteria=crit,
+            flags=calibration_flags(terms, params.model), criteria=crit,
         )
-        K, D, rvecs, tvecs, sd = out[1], out[2], out[3], out[4], out[5].ravel()
+        K, D, rvecs, tvecs, sd = out[1], out[2].ravel()[:n_dist], out[3], out[4], out[5].ravel()
         std.clear()
-        std.update({k: float(x) for k, x in zip(_INTR, sd[:9]) if k[0] in "fc" or k in model.split()})
+        std.update({k: float(x) for k, x in zip(_INTR, sd) if k[0] in "fc" or k in terms})
         poses = [_pose(r, t) for r, t in zip(rvecs, tvecs)]
         errs = [_reprojection(obj, v.corners, K, D, T) for v, T in zip(vs, poses)]
-        return K, D.ravel()[:5], poses, errs
+        return K, D, poses, errs
 
     K, D, poses, errs = run(views)
     oblique = [_oblique_deg(T) for T in poses]
@@ -891,15 +929,16 @@ def calibrate_camera(detections: list, board: BoardSpec, name: str, params: Cali
                                      rms_px=_rms(errs[worst]), edge_width_px=v.edge_width_px)
         views = views[:worst] + views[worst + 1 :]
         K, D, poses, errs = run(views)
-    if params.distortion == "auto" and _identifiable_model(model, D, std) != model:
-        model = _identifiable_model(model, D, std)
+    if params.distortion == "auto" and _identifiable_model(terms, D, std) != terms:
+        terms = _identifiable_model(terms, D, std)
         K, D, poses, errs = run(views)
     for v, T, e in zip(views, poses, errs):
         records[v.name] = ViewRecord(v.name, True, None, _rms(e), float(e.max()), _oblique_deg(T), v.edge_width_px)
     order = [d.name for d in detections]
     return CameraCalibration(
         name=name, image_size=size, K=K, dist=np.asarray(D, np.float64), rms_px=_rms(np.concatenate(errs)),
-        views=[records[n] for n in order], poses={v.name: T for v, T in zip(views, poses)}, std=dict(std), model=model,
+        views=[records[n] for n in order], poses={v.name: T for v, T in zip(views, poses)}, std=dict(std),
+        model=" ".join(terms) or "none",
         corners={d.name: d.corners for d in detections if d.found},
     )
 
@@ -1048,7 +1087,8 @@ def _side_check(side_detection: Detection | None, side_camera: Camera, board: Bo
 
 
 # ----------------------------------------------------------------------------- joint refinement
-_INTR = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+_INTR = ("fx", "fy", "cx", "cy") + COEFFICIENT_NAMES
+_NI = len(_INTR)  # parameters per camera in the joint problem
 
 
 def _rodrigues_batch(r: np.ndarray) -> np.ndarray:
@@ -1073,10 +1113,11 @@ class _JointProblem:
 
     Attributes
     ----------
-    x0 : (24 + 6 F,) array
-        Starting parameters ``[side intrinsics 9][top intrinsics 9][T_side_top 6][board poses 6 F]``: intrinsics
-        are fx fy cx cy (px) then k1 k2 p1 p2 k3; a transform is a rotation vector (rad) then a translation (mm).
-    free : (24 + 6 F,) bool array
+    x0 : (42 + 6 F,) array
+        Starting parameters ``[side intrinsics 18][top intrinsics 18][T_side_top 6][board poses 6 F]``: intrinsics
+        are fx fy cx cy (px) then OpenCV's 14 distortion coefficients; a transform is a rotation vector (rad)
+        then a translation (mm).
+    free : (42 + 6 F,) bool array
         The parameters adjusted (distortion terms outside a camera's model stay at their start).
     frames : list of str
         The F placements, in the order of their poses (``T_ref_board``) in ``x0``.
@@ -1103,19 +1144,21 @@ class _JointProblem:
         """Reprojection residuals (2 m,) px, every corner's u then every corner's v, at the free parameters ``xf``."""
         x = self.x0.copy()
         x[self.free] = xf
-        intr = x[:18].reshape(2, 9)
-        R_st = _rodrigues_batch(x[18:21][None])[0]
-        t_st = x[21:24]
-        poses = x[24:].reshape(len(self.frames), 6)
+        intr = x[: 2 * _NI].reshape(2, _NI)
+        R_st = _rodrigues_batch(x[2 * _NI : 2 * _NI + 3][None])[0]
+        t_st = x[2 * _NI + 3 : 2 * _NI + 6]
+        poses = x[2 * _NI + 6 :].reshape(len(self.frames), 6)
         R = _rodrigues_batch(poses[:, :3])
         X = np.einsum("nij,nj->ni", R[self.fidx], self.P) + poses[self.fidx, 3:]  # board -> the pose's camera (mm)
         Xs = X @ R_st.T + t_st  # top camera -> side camera (mm)
         X = np.where(self.via[:, None], Xs, X)
-        xy = X[:, :2] / X[:, 2:3]
-        ip = intr[self.cidx]
-        fx, fy, cx, cy = ip.T[:4]
-        xd, yd = distort_normalized(xy, ip.T[4:]).T  # each corner with its own camera's k1 k2 p1 p2 k3
-        return np.concatenate([fx * xd + cx - self.uv[:, 0], fy * yd + cy - self.uv[:, 1]])
+        x, y = X[:, 0] / X[:, 2], X[:, 1] / X[:, 2]
+        u, v = np.empty_like(x), np.empty_like(y)
+        for ci, p in enumerate(intr):  # each corner through its own camera's intrinsics and distortion
+            sel = self.cidx == ci
+            xd, yd = distort_xy(x[sel], y[sel], p[4:], tilt_matrix.__wrapped__(p[16], p[17])[0])
+            u[sel], v[sel] = p[0] * xd + p[2], p[1] * yd + p[3]
+        return np.concatenate([u - self.uv[:, 0], v - self.uv[:, 1]])
 
 
 def _joint_problem(cams: dict, observations: list, T_side_top: np.ndarray, board: BoardSpec,
@@ -1132,11 +1175,11 @@ def _joint_problem(cams: dict, observations: list, T_side_top: np.ndarray, board
     names = list(CAMERAS)
     obj = board.object_points()
     n = len(obj)
-    # parameter layout: [side intr 9][top intr 9][T_side_top 6][frame poses 6F]
+    # parameter layout: [side intr 18][top intr 18][T_side_top 6][frame poses 6F]
     x0 = []
     for nm in names:
         K, D = cams[nm]
-        x0 += [K[0, 0], K[1, 1], K[0, 2], K[1, 2], *np.asarray(D, float).ravel()[:5]]
+        x0 += [K[0, 0], K[1, 1], K[0, 2], K[1, 2], *padded(D)]
     r, t = _rt(T_side_top)
     x0 += [*r, *t]
     for o in observations:
@@ -1147,7 +1190,7 @@ def _joint_problem(cams: dict, observations: list, T_side_top: np.ndarray, board
     for i, nm in enumerate(names):
         terms = (models or {}).get(nm, "k1 k2 p1 p2 k3").split()
         for j, term in enumerate(_INTR[4:]):
-            free[9 * i + 4 + j] = term in terms
+            free[_NI * i + 4 + j] = term in terms
     # observation index arrays
     fidx, cidx, via, uv = [], [], [], []
     for fi, o in enumerate(observations):
@@ -1185,9 +1228,10 @@ def _joint_jacobian(pb: _JointProblem):
     both = lambda rows: np.concatenate([rows, rows + m])  # noqa: E731
     frame_rows = [both(np.flatnonzero(pb.fidx == f)) for f in range(F)]
     single_rows = {}
-    for j in range(24):
+    n_fixed = 2 * _NI + 6  # the cameras' intrinsics and T_side_top, before the poses
+    for j in range(n_fixed):
         if free[j]:
-            single_rows[j] = both(np.flatnonzero(pb.cidx == j // 9)) if j < 18 else both(np.flatnonzero(pb.via))
+            single_rows[j] = both(np.flatnonzero(pb.cidx == j // _NI)) if j < 2 * _NI else both(np.flatnonzero(pb.via))
 
     def jac(xf, f0):
         ri, ci, vals = [], [], []
@@ -1200,7 +1244,7 @@ def _joint_jacobian(pb: _JointProblem):
             ci.append(np.full(len(rows), k))
             vals.append((residual(x1)[rows] - f0[rows]) / h)
         for q in range(6):
-            cols = full_to_free[24 + 6 * np.arange(F) + q]
+            cols = full_to_free[n_fixed + 6 * np.arange(F) + q]
             h = 1e-7 * np.maximum(1.0, np.abs(xf[cols]))
             x1 = xf.copy()
             x1[cols] += h
@@ -1270,9 +1314,10 @@ def _joint_std(pb: _JointProblem, A: np.ndarray | None, cost: float, n_res: int)
 
 
 def _joint_solution(pb: _JointProblem, observations: list, xf: np.ndarray, res: np.ndarray, cost: float,
-                    std_full: np.ndarray, n: int) -> dict:
+                    std_full: np.ndarray, n: int, sizes: dict) -> dict:
     """:func:`refine_jointly`'s result from the solved free parameters ``xf``, the residuals ``res`` (px), their
-    ``cost`` (px²) and ``std_full`` (:func:`_joint_std`); ``n`` corners per view.
+    ``cost`` (px²) and ``std_full`` (:func:`_joint_std`); ``n`` corners per view; ``sizes``: each camera's
+    distortion coefficient count (as it came in).
 
     K (px), ``T_side_top`` and the poses ``T_ref_board`` as 4x4 (mm); per-corner errors (px) split per view.
     """
@@ -1281,13 +1326,14 @@ def _joint_solution(pb: _JointProblem, observations: list, xf: np.ndarray, res: 
     x = pb.x0.copy()
     x[free] = xf
     out_cams, std = {}, {}
+    at = 2 * _NI  # T_side_top, then the poses
     for i, nm in enumerate(names):
-        p = x[9 * i : 9 * i + 9]
+        p = x[_NI * i : _NI * i + _NI]
         K = np.array([[p[0], 0.0, p[2]], [0.0, p[1], p[3]], [0.0, 0.0, 1.0]])
-        out_cams[nm] = (K, p[4:9].copy())
-        std[nm] = {k: float(v) for k, v, f in zip(_INTR, std_full[9 * i : 9 * i + 9], free[9 * i : 9 * i + 9]) if f}
-    T_st = _pose(x[18:21], x[21:24])
-    poses = {f: _pose(x[24 + 6 * i : 27 + 6 * i], x[27 + 6 * i : 30 + 6 * i]) for i, f in enumerate(pb.frames)}
+        out_cams[nm] = (K, p[4 : 4 + sizes[nm]].copy())
+        std[nm] = {k: float(v) for k, v, f in zip(_INTR, std_full[_NI * i : _NI * i + _NI], free[_NI * i : _NI * i + _NI]) if f}
+    T_st = _pose(x[at : at + 3], x[at + 3 : at + 6])
+    poses = {f: _pose(x[at + 6 + 6 * i : at + 9 + 6 * i], x[at + 9 + 6 * i : at + 12 + 6 * i]) for i, f in enumerate(pb.frames)}
     m = len(pb.uv)
     err = np.hypot(res[:m], res[m:])
     errors = {}
@@ -1298,7 +1344,7 @@ def _joint_solution(pb: _JointProblem, observations: list, xf: np.ndarray, res: 
             errors[o["frame"]].append(err[start : start + n])
             start += n
     return {"cams": out_cams, "std": std, "T_side_top": T_st, "poses": poses, "errors": errors, "cost": 0.5 * cost,
-            "std_T_side_top": std_full[18:24].copy()}
+            "std_T_side_top": std_full[at : at + 6].copy()}
 
 
 def refine_jointly(cams: dict, observations: list, T_side_top: np.ndarray, board: BoardSpec, models: dict | None = None) -> dict:
@@ -1326,7 +1372,8 @@ def refine_jointly(cams: dict, observations: list, T_side_top: np.ndarray, board
     """
     pb = _joint_problem(cams, observations, T_side_top, board, models)
     xf, res, cost, A = _levenberg_marquardt(pb.residual, _joint_jacobian(pb), pb.x0[pb.free].copy())
-    return _joint_solution(pb, observations, xf, res, cost, _joint_std(pb, A, cost, len(res)), board.n_corners)
+    sizes = {nm: max(5, np.asarray(D).size) for nm, (K, D) in cams.items()}
+    return _joint_solution(pb, observations, xf, res, cost, _joint_std(pb, A, cost, len(res)), board.n_corners, sizes)
 
 
 # ----------------------------------------------------------------------------- inputs

@@ -1,24 +1,38 @@
-"""Calibrations in other tools' formats: OpenCV FileStorage YAML and ROS ``camera_info`` YAML.
+"""Calibrations in other tools' formats: OpenCV FileStorage, OpenCV ``stereo_calib``, Kalibr, ROS ``camera_info``.
 
-A lab that already calibrated its cameras (OpenCV scripts, ``ros camera_calibration``,
-Kalibr exports converted to these) can build the rig file from them instead of
-recalibrating; and ``ctr-bench calibrate`` exports its result in the OpenCV form.
+A lab that already calibrated its cameras (OpenCV scripts or samples, ``ros
+camera_calibration``, Kalibr) builds the rig file from them instead of recalibrating;
+``ctr-bench calibrate`` exports its result in the OpenCV and ROS forms. Distortion is
+OpenCV's full model (:mod:`recon.distortion`: 4, 5, 8, 12 or 14 coefficients) wherever
+the format can say it.
 
 OpenCV (``cv2.FileStorage``, ``%YAML:1.0``)
     One camera: ``camera_name`` (optional), ``image_width``, ``image_height``,
-    ``camera_matrix`` (3x3), ``distortion_coefficients`` (1x5: k1 k2 p1 p2 k3; 4 or
-    8 coefficients are read when the extra ones are zero), optional ``T_cam_world``
-    (4x4).
+    ``camera_matrix`` (3x3), ``distortion_coefficients`` (1xN, N = 4, 5, 8, 12, 14),
+    optional ``T_cam_world`` (4x4).
     Stereo: ``M1 D1`` (the **top** camera), ``M2 D2`` (the **side** camera), ``R T``
     with ``X_side = R X_top + T`` (mm), i.e. ``T_side_top`` as ``cv2.stereoCalibrate``
     returns it for (top, side); ``image_width``, ``image_height``; optional
     ``T_top_world`` (4x4).
 
+OpenCV ``stereo_calib`` sample (``samples/cpp/stereo_calib.cpp``)
+    ``intrinsics.yml`` with ``M1 D1 M2 D2`` and no image size, ``extrinsics.yml`` with
+    ``R T R1 R2 P1 P2 Q``; ``T`` is in the units of the sample's ``-s`` square size.
+    The image size, which camera is camera 1 and the unit of ``T`` come from the caller.
+
+Kalibr camchain (``camchain-*.yaml``, PyYAML)
+    ``cam0``, ``cam1``: ``camera_model: pinhole``, ``intrinsics [fu fv pu pv]``,
+    ``distortion_model: radtan``, ``distortion_coeffs [k1 k2 p1 p2]``, ``resolution [w h]``;
+    ``cam1``'s ``T_cn_cnm1`` (4x4, **metres**) maps cam0's frame into cam1's.
+
 ROS ``camera_info`` (PyYAML)
     ``image_width``, ``image_height``, ``camera_name``, ``camera_matrix`` /
     ``distortion_coefficients`` / ``rectification_matrix`` / ``projection_matrix`` as
-    ``{rows, cols, data}``, ``distortion_model: plumb_bob``. It holds no pose: the
-    extrinsics come from elsewhere (a world file or a calibration folder).
+    ``{rows, cols, data}``, ``distortion_model: plumb_bob`` (5) or ``rational_polynomial``
+    (8). It holds no pose: the extrinsics come from elsewhere (a world file or a
+    calibration folder). Written as a rectified stereo pair (``R``, ``P`` from
+    ``cv2.stereoRectify``, top = left, side = right, ``P[0, 3] = -fx' B`` with B in
+    metres) so that a ROS stereo pipeline accepts it.
 
 World file (``--world-from FILE``): YAML or JSON with ``T_top_world`` and, where the
 intrinsics files do not give it, ``T_side_top`` or ``T_side_world`` (4x4, mm, as
@@ -29,6 +43,7 @@ Every reader raises ``ValueError`` naming the file and the key at fault.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -36,6 +51,7 @@ import numpy as np
 import yaml
 
 from .camera import Camera, invert_transform
+from .distortion import as_coefficients, model_size
 from .rigcal import RigCalibration
 
 __all__ = [
@@ -43,6 +59,11 @@ __all__ = [
     "load_opencv_camera",
     "save_opencv_stereo",
     "load_opencv_stereo",
+    "load_stereo_calib",
+    "load_kalibr_camchain",
+    "ros_distortion",
+    "ros_stereo_rectification",
+    "export_rig_ros",
     "save_ros_camera_info",
     "load_ros_camera_info",
     "load_world_file",
@@ -53,15 +74,15 @@ __all__ = [
 
 
 # ----------------------------------------------------------------------------- helpers
-def _dist5(d, source: str, key: str) -> np.ndarray:
-    d = np.asarray(d, np.float64).ravel()
-    if d.size in (4, 5):
-        return np.concatenate([d, np.zeros(5 - d.size)])
-    if d.size > 5 and not np.any(d[5:]):
-        return d[:5].copy()
-    if d.size > 5:
-        raise ValueError(f"{source}: {key}: only the k1 k2 p1 p2 k3 model is supported, got {d.size} coefficients with non-zero extras")
-    raise ValueError(f"{source}: {key}: expected 4 or 5 distortion coefficients, got {d.size}")
+def _dist(d, source: str, key: str) -> np.ndarray:
+    """OpenCV distortion coefficients (4, 5, 8, 12 or 14) read from ``source``'s ``key``."""
+    return as_coefficients(d, f"{source}: {key}")
+
+
+def _row(dist) -> np.ndarray:
+    """Coefficients as OpenCV writes them: one row, the shortest model that holds them (5 at least)."""
+    d = np.asarray(dist, np.float64).ravel()
+    return d[: model_size(d)].reshape(1, -1)
 
 
 def _check_K(K, source: str, key: str) -> np.ndarray:
@@ -153,7 +174,7 @@ def save_opencv_camera(path, camera: Camera, with_pose: bool = True) -> None:
     fs.write("image_width", int(camera.width))
     fs.write("image_height", int(camera.height))
     fs.write("camera_matrix", np.asarray(camera.K, np.float64))
-    fs.write("distortion_coefficients", np.asarray(camera.dist, np.float64).reshape(1, 5))
+    fs.write("distortion_coefficients", _row(camera.dist))
     if with_pose:
         fs.write("T_cam_world", np.asarray(camera.T_cam_world, np.float64))
     fs.release()
@@ -166,7 +187,7 @@ def load_opencv_camera(path, name: str | None = None) -> Camera:
         src = str(r.path)
         w, h = r.size()
         K = _check_K(r.mat("camera_matrix"), src, "camera_matrix")
-        D = _dist5(r.mat("distortion_coefficients"), src, "distortion_coefficients")
+        D = _dist(r.mat("distortion_coefficients"), src, "distortion_coefficients")
         T = r.mat("T_cam_world", required=False)
         T = np.eye(4) if T is None else _check_T(T, src, "T_cam_world")
         nm = name or r.string("camera_name") or r.path.stem
@@ -186,14 +207,37 @@ def save_opencv_stereo(path, side: Camera, top: Camera, T_side_top: np.ndarray, 
     fs.write("camera1", top.name)
     fs.write("camera2", side.name)
     fs.write("M1", np.asarray(top.K, np.float64))
-    fs.write("D1", np.asarray(top.dist, np.float64).reshape(1, 5))
+    fs.write("D1", _row(top.dist))
     fs.write("M2", np.asarray(side.K, np.float64))
-    fs.write("D2", np.asarray(side.dist, np.float64).reshape(1, 5))
+    fs.write("D2", _row(side.dist))
     fs.write("R", T[:3, :3])
     fs.write("T", T[:3, 3].reshape(3, 1))
     if T_top_world is not None:
         fs.write("T_top_world", np.asarray(T_top_world, np.float64))
     fs.release()
+
+
+def _read_R_T(r: "_Reader", t_scale: float = 1.0) -> np.ndarray:
+    """``R T`` of a FileStorage file as a 4x4 transform, ``T`` times ``t_scale`` (to mm)."""
+    src = str(r.path)
+    R = r.mat("R")
+    if R.size == 3:
+        R = cv2.Rodrigues(R.reshape(3, 1))[0]
+    t = r.mat("T")
+    if R.shape != (3, 3) or t.size != 3:
+        raise ValueError(f"{src}: R must be 3x3 (or a rotation vector) and T a 3-vector")
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t.ravel() * t_scale
+    return _check_T(T, src, "R, T")
+
+
+def _cameras_1_2(r: "_Reader", size: tuple) -> tuple:
+    """``M1 D1`` and ``M2 D2`` of a FileStorage file as two cameras of ``size`` (w, h) px at identity pose."""
+    src = str(r.path)
+    Ks = [_check_K(r.mat(f"M{i}"), src, f"M{i}") for i in (1, 2)]
+    Ds = [_dist(r.mat(f"D{i}"), src, f"D{i}") for i in (1, 2)]
+    return tuple(Camera(f"camera{i}", size[0], size[1], K, D) for i, K, D in zip((1, 2), Ks, Ds))
 
 
 def load_opencv_stereo(path) -> dict:
@@ -204,26 +248,120 @@ def load_opencv_stereo(path) -> dict:
     r = _Reader(path)
     try:
         src = str(r.path)
-        w, h = r.size()
-        M1 = _check_K(r.mat("M1"), src, "M1")
-        M2 = _check_K(r.mat("M2"), src, "M2")
-        D1 = _dist5(r.mat("D1"), src, "D1")
-        D2 = _dist5(r.mat("D2"), src, "D2")
-        R = r.mat("R")
-        if R.size == 3:
-            R = cv2.Rodrigues(R.reshape(3, 1))[0]
-        t = r.mat("T")
-        if R.shape != (3, 3) or t.size != 3:
-            raise ValueError(f"{src}: R must be 3x3 (or a rotation vector) and T a 3-vector")
-        T = np.eye(4)
-        T[:3, :3] = R
-        T[:3, 3] = t.ravel()
-        T = _check_T(T, src, "R, T")
+        top, side = _cameras_1_2(r, r.size())
+        T = _read_R_T(r)
         Tw = r.mat("T_top_world", required=False)
         Tw = None if Tw is None else _check_T(Tw, src, "T_top_world")
     finally:
         r.close()
-    return {"top": Camera("top", w, h, M1, D1), "side": Camera("side", w, h, M2, D2), "T_side_top": T, "T_top_world": Tw}
+    return {"top": replace(top, name="top"), "side": replace(side, name="side"), "T_side_top": T, "T_top_world": Tw}
+
+
+def load_stereo_calib(intrinsics, extrinsics, image_size: tuple, first: str = "top", t_scale_mm: float = 1.0) -> dict:
+    """OpenCV's ``stereo_calib`` output: ``intrinsics.yml`` (M1 D1 M2 D2) and ``extrinsics.yml`` (R T ...).
+
+    Parameters
+    ----------
+    intrinsics, extrinsics : path
+    image_size : (width, height)
+        px; the files do not hold it.
+    first : {"top", "side"}
+        Which camera was the sample's camera 1 (the left image of each pair).
+    t_scale_mm : float
+        mm per unit of ``T`` (the sample writes T in the units of its ``-s`` square size).
+
+    Returns
+    -------
+    dict like :func:`load_opencv_stereo`'s (``T_top_world`` None).
+    """
+    if first not in ("top", "side"):
+        raise ValueError(f"camera 1 of {intrinsics} must be 'top' or 'side', got {first!r}")
+    if not t_scale_mm > 0:
+        raise ValueError(f"the unit of T in {extrinsics} must be a positive number of mm, got {t_scale_mm}")
+    w, h = (int(v) for v in image_size)
+    if w <= 0 or h <= 0:
+        raise ValueError(f"{intrinsics}: the image size must be positive, got {w}x{h}")
+    r = _Reader(intrinsics)
+    try:
+        c1, c2 = _cameras_1_2(r, (w, h))
+    finally:
+        r.close()
+    r = _Reader(extrinsics)
+    try:
+        T_2_1 = _read_R_T(r, t_scale_mm)
+    finally:
+        r.close()
+    if first == "top":
+        return {"top": replace(c1, name="top"), "side": replace(c2, name="side"), "T_side_top": T_2_1, "T_top_world": None}
+    return {"top": replace(c2, name="top"), "side": replace(c1, name="side"), "T_side_top": invert_transform(T_2_1), "T_top_world": None}
+
+
+# ----------------------------------------------------------------------------- Kalibr
+def _yaml_doc(path, what: str) -> dict:
+    """A YAML file's top-level mapping; ``ValueError`` naming the file when it is missing or not ``what``."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{path}: file not found") from None
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{path}: not a {what} (no keys)")
+    return doc
+
+
+def _kalibr_numbers(cam: dict, key: str, n: int, src: str) -> np.ndarray:
+    v = cam.get(key)
+    try:
+        arr = np.asarray(v, np.float64).ravel()
+    except (TypeError, ValueError):
+        arr = np.zeros(0)
+    if v is None or arr.size != n or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{src}: {key}: expected {n} numbers, got {v!r}")
+    return arr
+
+
+def _kalibr_camera(doc: dict, key: str, name: str, src: str) -> Camera:
+    cam = doc.get(key)
+    if not isinstance(cam, dict):
+        raise ValueError(f"{src}: missing {key} (the camchain's cameras are {', '.join(k for k in doc if k.startswith('cam')) or 'none'})")
+    where = f"{src}: {key}"
+    if cam.get("camera_model", "pinhole") != "pinhole":
+        raise ValueError(f"{where}: camera_model {cam.get('camera_model')!r}: only pinhole cameras are supported")
+    if cam.get("distortion_model", "radtan") not in ("radtan", "none"):
+        raise ValueError(f"{where}: distortion_model {cam.get('distortion_model')!r}: only radtan (OpenCV k1 k2 p1 p2) is supported")
+    fu, fv, pu, pv = _kalibr_numbers(cam, "intrinsics", 4, where)
+    w, h = _kalibr_numbers(cam, "resolution", 2, where)
+    D = np.zeros(4) if cam.get("distortion_model") == "none" else _kalibr_numbers(cam, "distortion_coeffs", 4, where)
+    K = _check_K([[fu, 0.0, pu], [0.0, fv, pv], [0.0, 0.0, 1.0]], where, "intrinsics")
+    return Camera(name, int(w), int(h), K, D)
+
+
+def load_kalibr_camchain(path, cams: dict | None = None) -> dict:
+    """A Kalibr camchain YAML file as :func:`load_opencv_stereo`'s dict (``T_top_world`` None).
+
+    ``cams`` maps ``"top"`` and ``"side"`` to camchain keys (default ``cam0`` top, ``cam1``
+    side). The chain's ``T_cn_cnm1`` (metres) becomes ``T_side_top`` in mm.
+    """
+    src = str(path)
+    doc = _yaml_doc(path, "Kalibr camchain")
+    cams = cams or {"top": "cam0", "side": "cam1"}
+    keys = sorted(cams.values())
+    if len(set(keys)) != 2 or any(not (k.startswith("cam") and k[3:].isdigit()) for k in keys):
+        raise ValueError(f"{src}: the top and side cameras must be two different camchain keys like cam0, cam1; got {cams}")
+    if int(keys[1][3:]) != int(keys[0][3:]) + 1:
+        raise ValueError(f"{src}: {keys[0]} and {keys[1]} are not neighbours in the chain (T_cn_cnm1 links cam_n to cam_n-1)")
+    later = doc.get(keys[1]) if isinstance(doc.get(keys[1]), dict) else {}
+    if "T_cn_cnm1" not in later:
+        raise ValueError(f"{src}: {keys[1]}: missing T_cn_cnm1 (its pose relative to {keys[0]})")
+    T = np.asarray(later["T_cn_cnm1"], np.float64) if np.shape(later["T_cn_cnm1"]) == (4, 4) else np.zeros((1, 1))
+    T = _check_T(T, src, f"{keys[1]}: T_cn_cnm1").copy()
+    T[:3, 3] *= 1000.0  # Kalibr works in metres
+    top = _kalibr_camera(doc, cams["top"], "top", src)
+    side = _kalibr_camera(doc, cams["side"], "side", src)
+    T_side_top = T if cams["side"] == keys[1] else invert_transform(T)
+    return {"top": top, "side": side, "T_side_top": T_side_top, "T_top_world": None}
 
 
 # ----------------------------------------------------------------------------- ROS
@@ -231,22 +369,82 @@ def _ros_matrix(rows: int, cols: int, data) -> dict:
     return {"rows": rows, "cols": cols, "data": [float(v) for v in np.asarray(data, np.float64).ravel()]}
 
 
-def save_ros_camera_info(path, camera: Camera, camera_name: str | None = None) -> None:
-    """A ROS ``camera_info`` YAML file (plumb_bob; no rectification: R = I, P = [K | 0])."""
+#: ROS ``distortion_model`` names of OpenCV's coefficient counts (ROS has none for the 12 and 14 models).
+_ROS_MODELS = {5: "plumb_bob", 8: "rational_polynomial"}
+
+
+def ros_distortion(camera: Camera) -> tuple:
+    """``(distortion_model, D)`` of ``camera`` for ROS: plumb_bob (5) or rational_polynomial (8 coefficients).
+
+    ``ValueError`` when its thin-prism or tilt terms are non-zero: ROS cannot carry them.
+    """
+    n = model_size(camera.dist)
+    if n not in _ROS_MODELS:
+        raise ValueError(f"camera {camera.name!r}: its {n}-coefficient distortion (thin prism / tilted sensor) has no ROS "
+                         "camera_info model (plumb_bob: 5, rational_polynomial: 8)")
+    return _ROS_MODELS[n], [float(v) for v in np.asarray(camera.dist, np.float64)[:n]]
+
+
+def _stereo_rectify(c1: Camera, c2: Camera, T_2_1: np.ndarray) -> tuple:
+    T = np.asarray(T_2_1, np.float64)
+    R1, R2, P1, P2, *_ = cv2.stereoRectify(c1.K, c1.dist, c2.K, c2.dist, c1.image_size, np.ascontiguousarray(T[:3, :3]),
+                                           (T[:3, 3] / 1000.0).reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
+    return (R1, P1), (R2, P2)
+
+
+def ros_stereo_rectification(top: Camera, side: Camera, T_side_top: np.ndarray) -> dict:
+    """ROS's rectified stereo pair: ``{"top": (R, P), "side": (R, P)}`` from ``cv2.stereoRectify``.
+
+    R rotates each camera's frame into the rectified one; P (3x4, px) projects rectified
+    points. The first camera (``P[:2, 3] = 0``) is the one the rectified geometry puts first;
+    the second has ``P[0, 3] = -fx' B`` (a horizontal pair) or ``P[1, 3] = -fy' B`` (a
+    vertical pair, which OpenCV chooses when the baseline runs more along the images' y
+    axes, as on the paper's rig), B the baseline in metres as ROS reads it. ROS's
+    ``stereo_image_proc`` only handles horizontal pairs; ``image_proc`` rectifies either.
+    With near-orthogonal cameras the epipoles lie in or near the images, so rectified
+    images are strongly warped.
+    """
+    if top.image_size != side.image_size:
+        raise ValueError(f"stereo rectification: the cameras' image sizes differ ({top.width}x{top.height} vs {side.width}x{side.height})")
+    a, b = _stereo_rectify(top, side, T_side_top)
+    if b[1][0, 3] + b[1][1, 3] > 0:  # side comes first once rectified: ROS wants the second camera's Tx (Ty) negative
+        b, a = _stereo_rectify(side, top, invert_transform(T_side_top))
+    return {"top": a, "side": b}
+
+
+def save_ros_camera_info(path, camera: Camera, camera_name: str | None = None, R: np.ndarray | None = None,
+                         P: np.ndarray | None = None) -> None:
+    """A ROS ``camera_info`` YAML file; without ``R``, ``P`` (:func:`ros_stereo_rectification`) a monocular one
+    (R = I, P = [K | 0])."""
     K = np.asarray(camera.K, np.float64)
-    P = np.hstack([K, np.zeros((3, 1))])
+    R = np.eye(3) if R is None else np.asarray(R, np.float64)
+    P = np.hstack([K, np.zeros((3, 1))]) if P is None else np.asarray(P, np.float64)
+    model, D = ros_distortion(camera)
     doc = {
         "image_width": int(camera.width),
         "image_height": int(camera.height),
         "camera_name": camera_name or camera.name,
         "camera_matrix": _ros_matrix(3, 3, K),
-        "distortion_model": "plumb_bob",
-        "distortion_coefficients": _ros_matrix(1, 5, camera.dist),
-        "rectification_matrix": _ros_matrix(3, 3, np.eye(3)),
+        "distortion_model": model,
+        "distortion_coefficients": _ros_matrix(1, len(D), D),
+        "rectification_matrix": _ros_matrix(3, 3, R),
         "projection_matrix": _ros_matrix(3, 4, P),
     }
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(yaml.safe_dump(doc, sort_keys=False))
+
+
+def export_rig_ros(rig: RigCalibration, stem) -> list:
+    """``<stem>_ros_top.yaml`` and ``<stem>_ros_side.yaml``: the rig as a rectified ROS stereo pair; returns the paths."""
+    stem = Path(stem)
+    side, top = rig["side"], rig["top"]
+    rect = ros_stereo_rectification(top, side, side.T_cam_world @ invert_transform(top.T_cam_world))
+    paths = []
+    for name, cam in (("top", top), ("side", side)):
+        path = stem.with_name(f"{stem.name}_ros_{name}.yaml")
+        save_ros_camera_info(path, cam, name, *rect[name])
+        paths.append(path)
+    return paths
 
 
 def _ros_get(doc: dict, key: str, src: str, rows: int | None = None, cols: int | None = None) -> np.ndarray:
@@ -266,27 +464,23 @@ def _ros_get(doc: dict, key: str, src: str, rows: int | None = None, cols: int |
 
 
 def load_ros_camera_info(path, name: str | None = None) -> Camera:
-    """A :class:`Camera` (identity pose) from a ROS ``camera_info`` YAML file."""
+    """A :class:`Camera` (identity pose) from a ROS ``camera_info`` YAML file (plumb_bob or rational_polynomial)."""
     path = Path(path)
     src = str(path)
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"{src}: file not found") from None
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{src}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    if not isinstance(doc, dict):
-        raise ValueError(f"{src}: not a ROS camera_info file (no keys)")
+    doc = _yaml_doc(path, "ROS camera_info file")
     for key in ("image_width", "image_height"):
         if key not in doc:
             raise ValueError(f"{src}: missing {key}")
         if isinstance(doc[key], bool) or not isinstance(doc[key], int) or doc[key] <= 0:
             raise ValueError(f"{src}: {key}: must be a positive integer, got {doc[key]!r}")
     model = doc.get("distortion_model", "plumb_bob")
-    if model not in ("plumb_bob", "rational_polynomial"):
-        raise ValueError(f"{src}: distortion_model: only plumb_bob (k1 k2 p1 p2 k3) is supported, got {model!r}")
+    if model not in _ROS_MODELS.values():
+        raise ValueError(f"{src}: distortion_model: only plumb_bob (k1 k2 p1 p2 k3) and rational_polynomial (+ k4 k5 k6) "
+                         f"are supported, got {model!r}")
     K = _check_K(_ros_get(doc, "camera_matrix", src, 3, 3), src, "camera_matrix")
-    D = _dist5(_ros_get(doc, "distortion_coefficients", src), src, "distortion_coefficients")
+    D = _dist(_ros_get(doc, "distortion_coefficients", src), src, "distortion_coefficients")
+    if model_size(D) > 8 or (model == "plumb_bob" and model_size(D) > 5):
+        raise ValueError(f"{src}: distortion_coefficients: {D.size} coefficients with non-zero terms beyond {model}'s")
     return Camera(name or str(doc.get("camera_name") or path.stem), doc["image_width"], doc["image_height"], K, D)
 
 

@@ -5,8 +5,10 @@ Foxglove opens it and ``ros2 bag play`` plays it without ROS installed here.
 Per frame of the run, at the frame's time ``t_s``:
 
 * ``/<camera>/image/compressed`` (``sensor_msgs/msg/CompressedImage``, PNG)
-  and ``/<camera>/camera_info`` (``sensor_msgs/msg/CameraInfo``, plumb_bob,
-  no rectification: R = I, P = [K | 0]) for each camera of the session;
+  and ``/<camera>/camera_info`` (``sensor_msgs/msg/CameraInfo``: plumb_bob or
+  rational_polynomial, with R and P of the rectified stereo pair, top = left, as
+  ``ctr-bench calibrate`` writes them: :func:`recon.calibration_io.ros_stereo_rectification`)
+  for each camera of the session;
 * ``/ctr/backbone`` (``nav_msgs/msg/Path``): the backbone, base first,
   every pose oriented along the curve's tangent (x axis);
 * ``/ctr/tube`` (``visualization_msgs/msg/Marker``, LINE_STRIP): the same
@@ -110,12 +112,23 @@ def _base_frame(rig) -> np.ndarray:
     return T
 
 
-def _camera_info(cam, t_ns: int, name: str) -> dict:
-    K = np.asarray(cam.K, float)
-    P = np.hstack([K, np.zeros((3, 1))])
+def _rectification(rig) -> dict:
+    """Each camera's (R, P) of the rectified top/side pair; R = I, P = [K | 0] for other rigs."""
+    from recon.calibration_io import ros_stereo_rectification
+
+    if set(rig.names) == {"side", "top"}:
+        side, top = rig["side"], rig["top"]
+        return ros_stereo_rectification(top, side, side.T_cam_world @ top.T_world_cam)
+    return {n: (np.eye(3), np.hstack([rig[n].K, np.zeros((3, 1))])) for n in rig.names}
+
+
+def _camera_info(cam, t_ns: int, name: str, R: np.ndarray, P: np.ndarray) -> dict:
+    from recon.calibration_io import ros_distortion
+
+    model, D = ros_distortion(cam)
     return {"header": _header(t_ns, f"{name}_optical"), "height": int(cam.height), "width": int(cam.width),
-            "distortion_model": "plumb_bob", "d": [float(v) for v in cam.dist], "k": K.ravel().tolist(),
-            "r": np.eye(3).ravel().tolist(), "p": P.ravel().tolist(), "binning_x": 0, "binning_y": 0,
+            "distortion_model": model, "d": D, "k": np.asarray(cam.K, float).ravel().tolist(),
+            "r": np.asarray(R, float).ravel().tolist(), "p": np.asarray(P, float).ravel().tolist(), "binning_x": 0, "binning_y": 0,
             "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False}}
 
 
@@ -210,12 +223,13 @@ def export_mcap(run_dir, out_path, images: bool = True, progress=None) -> dict:
         frames = {r["frame"]: r for r in run.records}
         width_mm = _tube_width_mm(run)
         T_base = _base_frame(run.rig)
+        rect = _rectification(run.rig)
         for k, (index, rec) in enumerate(sorted(frames.items())):
             t_ns = int(round(float(rec.get("t_s") or 0.0) * 1e9))
             tfs = [_transform(t_ns, f"{n}_optical", run.rig[n].T_world_cam) for n in run.rig.names]
             put("/tf", "tf2_msgs/msg/TFMessage", {"transforms": tfs + [_transform(t_ns, "robot_base", T_base)]}, t_ns)
             for n in run.rig.names:
-                put(f"/{n}/camera_info", "sensor_msgs/msg/CameraInfo", _camera_info(run.rig[n], t_ns, n), t_ns)
+                put(f"/{n}/camera_info", "sensor_msgs/msg/CameraInfo", _camera_info(run.rig[n], t_ns, n, *rect[n]), t_ns)
             if session is not None:
                 for n in session.cameras:
                     png = session.frame_path(index, n).read_bytes()

@@ -304,7 +304,7 @@ def test_cli_calibrates_a_folder_and_imports(folder, capture, tmp_path, capsys):
     assert main(["calibrate", str(folder), "--out", str(out), "--quiet"]) == 0
     printed = capsys.readouterr().out
     assert "vs truth T_side_world" in printed
-    for name in ("rig.json", "rig_stereo.yaml", "rig_side.yaml", "rig_top.yaml", "calibration_report.json",
+    for name in ("rig.json", "rig_stereo.yaml", "rig_side.yaml", "rig_top.yaml", "rig_ros_top.yaml", "rig_ros_side.yaml", "calibration_report.json",
                  "calibration_coverage_side.png", "calibration_coverage_top.png"):
         assert (out.parent / name).is_file(), name
     rig = load_rig_calibration(out)

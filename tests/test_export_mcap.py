@@ -62,6 +62,9 @@ def test_export_round_trip(run_dir, tmp_path):
     for n in rig.names:
         info = msgs[f"/{n}/camera_info"][0][2]
         np.testing.assert_allclose(np.reshape(info.k, (3, 3)), rig[n].K)
+        assert info.distortion_model == "plumb_bob" and np.allclose(info.d, rig[n].dist[:5])
+        R = np.reshape(info.r, (3, 3))
+        assert np.abs(R @ R.T - np.eye(3)).max() < 1e-9  # the rectifying rotation
         assert (info.width, info.height) == (rig[n].width, rig[n].height) and info.header.frame_id == f"{n}_optical"
         for k in range(3):
             img = msgs[f"/{n}/image/compressed"][k][2]
@@ -69,6 +72,11 @@ def test_export_round_trip(run_dir, tmp_path):
         tf = {t.child_frame_id: t.transform for t in msgs["/tf"][0][2].transforms}
         tr = tf[f"{n}_optical"].translation
         np.testing.assert_allclose([tr.x, tr.y, tr.z], rig[n].center_world_mm / 1000.0, atol=1e-12)
+    # the second camera's P carries -f' * baseline (m) in Tx or Ty, the first camera 0, as ROS stereo expects
+    B_m = np.linalg.norm(rig["side"].center_world_mm - rig["top"].center_world_mm) / 1000.0
+    P = {n: np.reshape(msgs[f"/{n}/camera_info"][0][2].p, (3, 4)) for n in ("side", "top")}
+    t = sorted(float((p[0, 3] + p[1, 3]) / p[0, 0]) for p in P.values())
+    assert abs(t[0] + B_m) < 1e-9 and t[1] == 0.0
     base = tf["robot_base"].translation
     np.testing.assert_allclose([base.x, base.y, base.z], rig.base_point_world_mm / 1000.0, atol=1e-12)
 

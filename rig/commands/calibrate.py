@@ -6,6 +6,8 @@ Modes (exactly one)::
     ctr-bench calibrate DIR --board 9x6 --square-mm 5 --out rig.json   calibrate from a folder
     ctr-bench calibrate --import-opencv STEREO.yaml --world-from W --out rig.json
     ctr-bench calibrate --import-ros SIDE.yaml TOP.yaml --world-from W --out rig.json
+    ctr-bench calibrate --import-stereo-calib intrinsics.yml extrinsics.yml --world-from W --out rig.json
+    ctr-bench calibrate --import-kalibr camchain.yaml --world-from W --out rig.json
 
 The folder layout, the world-frame convention and the outputs are described in
 docs/calibration.md.
@@ -63,7 +65,8 @@ def _placement(args, meta: dict) -> dict:
 def _params(args):
     from recon.calibration import CalibrationParams
 
-    return CalibrationParams(distortion=args.distortion, joint_refinement=not args.no_joint_refinement, min_views=args.min_views)
+    return CalibrationParams(model=args.model, distortion=args.distortion, joint_refinement=not args.no_joint_refinement,
+                             min_views=args.min_views)
 
 
 # ----------------------------------------------------------------------------- modes
@@ -89,8 +92,7 @@ def _calibrate_folder(args) -> int:
     import cv2
 
     from recon.calibration import calibrate_rig, draw_coverage, load_calibration_folder, save_report
-    from recon.calibration_io import export_rig_opencv
-    from recon.rigcal import load_rig_calibration, save_rig_calibration
+    from recon.rigcal import load_rig_calibration
     from rig.progress import Progress
 
     folder = Path(args.folder)
@@ -104,10 +106,7 @@ def _calibrate_folder(args) -> int:
     rig, report = calibrate_rig(images, board, _params(args), progress=progress, **placement)
     progress.close()
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    save_rig_calibration(out, rig)
-    written = [out]
-    written += export_rig_opencv(rig, out.with_suffix(""))
+    written = _save_rig(out, rig)
     report_path = out.parent / "calibration_report.json"
     save_report(report_path, report)
     written.append(report_path)
@@ -137,7 +136,7 @@ def _world_images(path: Path):
     return None
 
 
-def _one_side_pose(args, world_from: Path, T_stereo, T_world_file):
+def _one_side_pose(world_from: Path, source: str, T_stereo, T_world_file):
     """The side pose from the stereo file or the world file; both, only when they agree (0.01 mm, 0.001 deg).
 
     An OpenCV stereo file's R, T is T_side_top; a world file giving another one
@@ -149,60 +148,116 @@ def _one_side_pose(args, world_from: Path, T_stereo, T_world_file):
 
     d_mm, d_deg = pose_difference(T_world_file, T_stereo)
     if d_mm > 0.01 or d_deg > 0.001:
-        raise ValueError(f"{world_from}: T_side_top differs from the R, T of {args.import_opencv} by {d_mm:.3f} mm, {d_deg:.4f} deg "
+        raise ValueError(f"{world_from}: T_side_top differs from the side pose of {source} by {d_mm:.3f} mm, {d_deg:.4f} deg "
                          "(--world-from): give the side camera's pose in one file only")
     return T_stereo
 
 
+def _save_rig(out: Path, rig) -> list:
+    """The rig file and its exports: OpenCV (``<stem>_stereo.yaml``, per camera) and a rectified ROS stereo pair
+    (``<stem>_ros_<camera>.yaml``, skipped with a note when the distortion has no ROS model); returns the paths."""
+    from recon.calibration_io import export_rig_opencv, export_rig_ros
+    from recon.rigcal import save_rig_calibration
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    save_rig_calibration(out, rig)
+    written = [out] + export_rig_opencv(rig, out.with_suffix(""))
+    try:
+        written += export_rig_ros(rig, out.with_suffix(""))
+    except ValueError as exc:
+        print(f"note: no ROS camera_info written: {exc}")
+    return written
+
+
+def _image_size(args, images) -> tuple | None:
+    """The image size (w, h) px from --image-size and/or the world-frame images; an error when they disagree."""
+    from_images = None
+    if images is not None:
+        shapes = {img.shape[1::-1] for group in images.world.values() for _, img in group}
+        shapes |= {img.shape[1::-1] for _, pair in images.stereo for img in pair.values()}
+        from_images = next(iter(shapes)) if len(shapes) == 1 else None
+    given = tuple(args.image_size) if args.image_size else None
+    if given and from_images and given != from_images:
+        raise ValueError(f"--image-size {given[0]} {given[1]} disagrees with the {from_images[0]}x{from_images[1]} images of "
+                         f"{args.world_from} (--world-from)")
+    return given or from_images
+
+
+def _imported(args, images) -> tuple:
+    """``(side, top, T_side_top or None, source)`` from whichever --import-* option was given."""
+    from recon import calibration_io as io
+
+    if args.import_opencv:
+        st, src = io.load_opencv_stereo(args.import_opencv), args.import_opencv
+    elif args.import_stereo_calib:
+        size = _image_size(args, images)
+        if size is None:
+            raise ValueError("--import-stereo-calib: the files hold no image size: give --image-size W H (or world-frame images "
+                             "with --world-from)")
+        st = io.load_stereo_calib(*args.import_stereo_calib, size, args.camera1, args.t_unit_mm)
+        src = " + ".join(args.import_stereo_calib)
+    elif args.import_kalibr:
+        cams = {"top": args.kalibr_cams[0], "side": args.kalibr_cams[1]}
+        st, src = io.load_kalibr_camchain(args.import_kalibr, cams), args.import_kalibr
+        size = _image_size(args, images)
+        if size is not None and size != st["top"].image_size:
+            raise ValueError(f"{src}: resolution {st['top'].width}x{st['top'].height} disagrees with --image-size / the "
+                             f"--world-from images ({size[0]}x{size[1]})")
+    else:
+        side = io.load_ros_camera_info(args.import_ros[0], "side")
+        top = io.load_ros_camera_info(args.import_ros[1], "top")
+        return side, top, None, " + ".join(args.import_ros)
+    return st["side"], st["top"], st["T_side_top"], src
+
+
+def _world_from_file(args, world_from: Path, T_side_top, source: str) -> tuple:
+    """``(T_top_world, T_side_top, T_side_world)`` from a world file, refusing a side pose that contradicts ``source``."""
+    from recon.calibration_io import load_world_file
+
+    w = load_world_file(world_from)
+    T_side_top = _one_side_pose(world_from, source, T_side_top, w.get("T_side_top"))
+    T_side_world = w.get("T_side_world")
+    if w.get("T_top_world") is None:
+        raise ValueError(f"{world_from}: missing T_top_world")
+    if T_side_top is None and T_side_world is None:
+        raise ValueError(f"{world_from}: the ROS files hold no pose: give T_side_top or T_side_world in the world file")
+    return w["T_top_world"], T_side_top, T_side_world
+
+
 def _import(args) -> int:
     from recon.calibration import calibrate_extrinsics
-    from recon.calibration_io import load_opencv_stereo, load_ros_camera_info, load_world_file, rig_from_parts
-    from recon.rigcal import save_rig_calibration
+    from recon.calibration_io import rig_from_parts
 
     if args.world_from is None:
         raise ValueError("importing needs --world-from: a world file (T_top_world), a world-frame image or a calibration folder")
-    if args.import_opencv:
-        st = load_opencv_stereo(args.import_opencv)
-        side, top, T_side_top = st["side"], st["top"], st["T_side_top"]
-    else:
-        side = load_ros_camera_info(args.import_ros[0], "side")
-        top = load_ros_camera_info(args.import_ros[1], "top")
-        T_side_top = None
     world_from = Path(args.world_from)
     if not world_from.exists():
         raise ValueError(f"{world_from}: not found (--world-from)")
     images = _world_images(world_from)
-    meta = _board_meta(world_from if world_from.is_dir() else None)
-    placement = _placement(args, meta)
+    side, top, T_side_top, source = _imported(args, images)
+    placement = _placement(args, _board_meta(world_from if world_from.is_dir() else None))
     T_side_world = None
     if images is None:
-        w = load_world_file(world_from)
-        T_top_world = w.get("T_top_world")
-        T_side_top = _one_side_pose(args, world_from, T_side_top, w.get("T_side_top"))
-        T_side_world = w.get("T_side_world")
-        if T_top_world is None:
-            raise ValueError(f"{world_from}: missing T_top_world")
-        if T_side_top is None and T_side_world is None:
-            raise ValueError(f"{world_from}: the ROS files hold no pose: give T_side_top or T_side_world in the world file")
+        T_top_world, T_side_top, T_side_world = _world_from_file(args, world_from, T_side_top, source)
     else:
-        board = _board(args, meta)
+        board = _board(args, _board_meta(world_from if world_from.is_dir() else None))
         T_side_top, world, _ = calibrate_extrinsics(side, top, images, board, _params(args), placement["world_origin_mm"], T_side_top)
         T_top_world = world.T_top_world
         print(f"world frame from {world.view.name}: RMS {world.rms_px:.3f} px")
     rig = rig_from_parts(side, top, T_top_world, T_side_top, T_side_world,
                          placement["base_point_world_mm"], placement["insertion_axis_world"])
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    save_rig_calibration(out, rig)
-    print(f"wrote {out}")
+    written = _save_rig(Path(args.out), rig)
+    print("wrote " + ", ".join(str(p) for p in written))
     return 0
 
 
 def _run(args) -> int:
     modes = [m for m, on in (("folder", args.folder), ("--render", args.render), ("--import-opencv", args.import_opencv),
-                             ("--import-ros", args.import_ros)) if on]
+                             ("--import-ros", args.import_ros), ("--import-stereo-calib", args.import_stereo_calib),
+                             ("--import-kalibr", args.import_kalibr)) if on]
     if len(modes) != 1:
-        raise ValueError("give exactly one of: a calibration folder, --render SCENE, --import-opencv FILE, --import-ros SIDE TOP"
+        raise ValueError("give exactly one of: a calibration folder, --render SCENE, --import-opencv FILE, --import-ros SIDE TOP, "
+                         "--import-stereo-calib INTRINSICS EXTRINSICS, --import-kalibr CAMCHAIN"
                          + (f" (got {', '.join(modes)})" if modes else ""))
     if args.render:
         return _render(args)
@@ -211,6 +266,18 @@ def _run(args) -> int:
     if args.folder:
         return _calibrate_folder(args)
     return _import(args)
+
+
+def _model(text: str) -> int:
+    """``--model``'s type: an OpenCV coefficient count or its name (recon.distortion.MODEL_NAMES)."""
+    import argparse
+
+    from recon.distortion import MODEL_NAMES, MODEL_SIZES
+
+    n = MODEL_NAMES.get(text, int(text) if text.isdigit() else None)
+    if n not in MODEL_SIZES:
+        raise argparse.ArgumentTypeError(f"expected {', '.join(map(str, MODEL_SIZES))} or {', '.join(MODEL_NAMES)}, got {text!r}")
+    return n
 
 
 def _min_views(text: str) -> int:
@@ -240,6 +307,17 @@ def register(sub) -> None:
                    f"(e.g. {DEFAULT_CAL_SCENE.relative_to(DEFAULT_CAL_SCENE.parents[1])}) into --out DIR")
     p.add_argument("--import-opencv", metavar="STEREO_YAML", default=None, help="build the rig from an OpenCV stereo file (M1 D1 = top, M2 D2 = side, R T)")
     p.add_argument("--import-ros", metavar=("SIDE_YAML", "TOP_YAML"), nargs=2, default=None, help="build the rig from two ROS camera_info files")
+    p.add_argument("--import-stereo-calib", metavar=("INTRINSICS", "EXTRINSICS"), nargs=2, default=None,
+                   help="build the rig from OpenCV stereo_calib's intrinsics.yml (M1 D1 M2 D2) and extrinsics.yml (R T ...)")
+    p.add_argument("--camera1", choices=("top", "side"), default="top",
+                   help="with --import-stereo-calib: which camera was stereo_calib's camera 1 (default top)")
+    p.add_argument("--t-unit-mm", type=float, default=1.0,
+                   help="with --import-stereo-calib: mm per unit of T (stereo_calib writes T in its -s square-size units; default 1)")
+    p.add_argument("--import-kalibr", metavar="CAMCHAIN", default=None, help="build the rig from a Kalibr camchain YAML (pinhole-radtan)")
+    p.add_argument("--kalibr-cams", nargs=2, metavar=("TOP", "SIDE"), default=("cam0", "cam1"),
+                   help="with --import-kalibr: the camchain keys of the top and side cameras (default cam0 cam1)")
+    p.add_argument("--image-size", nargs=2, type=int, metavar=("W", "H"), default=None,
+                   help="image size in px, for imports whose files hold none (stereo_calib); checked against the images")
     p.add_argument("--world-from", metavar="PATH", default=None,
                    help="for imports: a world file (YAML/JSON with T_top_world, and T_side_top or T_side_world for ROS), "
                    "a world-frame image of the top camera, or a calibration folder (world/ and stereo/)")
@@ -252,8 +330,12 @@ def register(sub) -> None:
                    help="where the robot leaves the actuation unit, world mm (default 0 0 0)")
     p.add_argument("--insertion-axis", nargs=3, type=float, metavar=("X", "Y", "Z"), default=None,
                    help="world direction of insertion (default 1 0 0)")
+    p.add_argument("--model", type=_model, default=5, metavar="N",
+                   help="OpenCV distortion model: 4, 5 (plumb_bob, default), 8 (rational_polynomial), 12 (thin_prism) or 14 (tilted), "
+                   "by count or name")
     p.add_argument("--distortion", default="auto",
-                   help="estimated distortion terms: auto (k1 k2 p1 p2 k3, insignificant ones held at 0) or e.g. 'k1 k2 p1 p2 k3', 'k1 k2'")
+                   help="which of the model's terms are estimated: auto (all, insignificant groups held at 0), none, or e.g. "
+                   "'k1 k2 p1 p2 k3', 'k1 k2'")
     p.add_argument("--no-joint-refinement", action="store_true", help="stop after the OpenCV stages (as the paper did)")
     p.add_argument("--min-views", type=_min_views, default=5, help="usable views each camera needs (at least 3; default 5)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
