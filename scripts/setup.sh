@@ -37,7 +37,7 @@ fi
 stamp=.venv/.ctr-bench-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
   echo "setup: installing ctr-bench and its dependencies into .venv"
-  .venv/bin/python -m pip install -q --upgrade pip
+  .venv/bin/python -m pip install -q --upgrade pip "setuptools>=77"
   .venv/bin/python -m pip install -q -e ".[test]"
   touch "$stamp"
 fi

@@ -2,14 +2,13 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import pytest
 
 import twin  # noqa: F401  (chooses the OpenGL platform before anything imports PyOpenGL)
+from rig.scenefiles import scenes_dir
 
-ROOT = Path(__file__).resolve().parents[1]
-SCENES = ROOT / "scenes"
+SCENES = scenes_dir()  # the checkout's scenes/, found as the CLI finds it
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 

@@ -32,10 +32,11 @@ from __future__ import annotations
 
 import copy
 import sys
-from pathlib import Path
 
 import numpy as np
 from hypothesis import strategies as st
+
+from rig.scenefiles import scene_path
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -74,7 +75,7 @@ __all__ = [
     "contrast_dicts",
 ]
 
-PAPER_TOML = Path(__file__).resolve().parents[1] / "scenes" / "paper.toml"
+PAPER_TOML = scene_path("paper.toml")
 _PAPER = None
 
 #: World box both cameras of the paper rig see with some margin (mm): lo, hi.

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +11,7 @@ from recon.camera import Camera, look_at
 from recon.errors import FrameError
 from recon.methods import prepare
 from recon.paper import PaperParams, behind_base_pixels
+from rig.scenefiles import scene_path
 
 K = np.array([[2580.0, 0, 511.5], [0, 2580.0, 383.5], [0, 0, 1]])
 BASE, AXIS = np.zeros(3), np.array([1.0, 0.0, 0.0])
@@ -42,7 +42,7 @@ def test_no_cut_when_the_camera_looks_along_the_insertion_axis():
     assert behind_base_pixels(cam, BASE, AXIS, margin_px=8.0) is None
 
 
-SCENE = Path(__file__).resolve().parents[1] / "scenes" / "tune" / "dim-flicker.toml"
+SCENE = scene_path("tune", "dim-flicker.toml")
 
 
 @pytest.fixture(scope="module")

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from rig.cli import main
+from rig.scenefiles import scenes_dir
 from rig.session import SessionWriter
 from twin.kinematics import solve
 from twin.modelfit import (
@@ -41,8 +42,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-ROOT = Path(__file__).resolve().parents[1]
-SCENES = ROOT / "scenes"
+SCENES = scenes_dir()
 ROT_OFFSET = 6.0        # true inner rotation = recorded + 6 deg
 NOISE_MM = 0.1
 
@@ -132,8 +132,8 @@ def test_verify_nominal_model_shows_its_error(bending_data, tmp_path):
 
 def test_fit_recovers_precurvature_and_rotation_offset(bending_data, plastic, tmp_path, capsys):
     out = tmp_path / "robot_fitted.toml"
-    rc = main(["fit", str(bending_data["recon"]), "--model", "bending", "--params",
-               "inner.precurvature_per_mm,rotation_offset_deg.inner,stiffness_ratio", "--holdout", "4", "--out", str(out)])
+    rc = main(["fit", str(bending_data["recon"]), "--model", "bending", "--fit-params",
+               "inner.precurvature_per_mm,rotation_offset_deg.inner,stiffness_ratio", "--holdout-every", "4", "--out", str(out)])
     assert rc == 0
     rep = json.loads(out.with_suffix(".json").read_text())
     got = {p["name"]: p for p in rep["parameters"]}
@@ -198,7 +198,7 @@ def _err(capsys) -> str:
 
 def test_bad_inputs_give_one_line_errors(bending_data, plastic, nominal, tmp_path, capsys):
     recon, out = str(bending_data["recon"]), str(tmp_path / "r.toml")
-    assert main(["fit", recon, "--params", "inner.wobble", "--out", out]) == 2
+    assert main(["fit", recon, "--fit-params", "inner.wobble", "--out", out]) == 2
     assert "unknown parameter 'inner.wobble'" in _err(capsys)
     # frames without joint values
     s = write_session(tmp_path / "nojoints", plastic, "bending", robot_to_dict(nominal.robot, "bending"), frames=[0, 1], no_joints=(0, 1))

@@ -1,14 +1,13 @@
 """Scene files: the paper scene loads; every kind of mistake names the file and the key."""
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from rig.scenefiles import scene_path
 from twin.scene import SceneError, load_scene
 
-ROOT = Path(__file__).resolve().parents[1]
-PAPER = (ROOT / "scenes" / "paper.toml").read_text()
+PAPER = scene_path("paper.toml").read_text()
 
 
 def test_paper_scene_matches_the_paper(paper_scene):

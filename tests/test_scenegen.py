@@ -3,18 +3,16 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from rig.scenefiles import scene_path
 from twin.scene import SceneError, read_toml, scene_from_dict
 from twin.scenegen import (ANGLE_DEG, DISTANCE_MM, IMAGE_SIZES, camera_angle_deg, generate_suite, shrink_images,
                            view_problem)
 from twin.simulator import Twin
 from twin.textures import KINDS
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -160,7 +158,7 @@ def test_every_backdrop_kind_fills_both_views(suite, kind):
 
 
 def test_new_keys_at_their_defaults_render_as_before():
-    data = read_toml(ROOT / "scenes" / "paper.toml", "scene")
+    data = read_toml(scene_path("paper.toml"), "scene")
     data = _tiny(data, max_side_px=256)
     explicit = json.loads(json.dumps(data))
     explicit["image"].update(kind="camera", mask_polarity="robot-white")
@@ -192,7 +190,7 @@ def test_new_keys_at_their_defaults_render_as_before():
     ],
 )
 def test_new_keys_are_checked_in_one_line(section, key, value, why):
-    data = read_toml(ROOT / "scenes" / "paper.toml", "scene")
+    data = read_toml(scene_path("paper.toml"), "scene")
     table = data
     for part in section.split("."):
         table = table.setdefault(part, {})
@@ -204,7 +202,7 @@ def test_new_keys_are_checked_in_one_line(section, key, value, why):
 
 
 def test_masks_need_mono_images():
-    data = read_toml(ROOT / "scenes" / "paper.toml", "scene")
+    data = read_toml(scene_path("paper.toml"), "scene")
     data["image"].update(kind="masks", color="rgb")
     with pytest.raises(SceneError, match=r"image.color: must be \"mono\""):
         scene_from_dict(data, source="x.toml")

@@ -12,11 +12,12 @@ from recon.fast import FastParams
 from recon.paper import PaperParams
 from recon.params import load_params
 from rig.cli import main
+from rig.scenefiles import scene_path
 from rig.tune import KNOBS, Evaluator, Knob, evaluate, knob_values, load_tune_sessions, tune, tuned_dict, with_knobs
 
 ROOT = Path(__file__).resolve().parents[1]
 #: A tuning scene: dim, flickering light, noisy sensor; 4 frames, 10 background frames.
-SCENE = ROOT / "scenes" / "tune" / "dim-flicker.toml"
+SCENE = scene_path("tune", "dim-flicker.toml")
 THRESHOLD = next(k for k in KNOBS["paper"] if k.path == "silhouette.threshold")
 
 

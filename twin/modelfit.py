@@ -734,11 +734,11 @@ def split_holdout(frames: list, k: int | None) -> tuple:
     if not k:
         return list(frames), []
     if k < 2:
-        raise ModelFitError(f"--holdout must be >= 2 (every k-th frame held out), got {k}")
+        raise ModelFitError(f"--holdout-every must be >= 2 (every k-th frame held out), got {k}")
     held = [f for j, f in enumerate(frames) if (j + 1) % k == 0]
     fit_ = [f for j, f in enumerate(frames) if (j + 1) % k != 0]
     if not held:
-        raise ModelFitError(f"--holdout {k}: fewer than {k} frames, nothing to hold out")
+        raise ModelFitError(f"--holdout-every {k}: fewer than {k} frames, nothing to hold out")
     return fit_, held
 
 

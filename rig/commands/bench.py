@@ -46,6 +46,21 @@ METHODS = ("paper", "fast", "icp-epipolar")
 PEERS = ("icp-epipolar",)
 
 
+def method_list(text: str) -> list:
+    """``--methods``'s type: known names, comma-separated, checked when the options are read (before any render).
+
+    A peer that is known but not installed is accepted here and skipped with its reason later.
+    """
+    import argparse
+
+    names = [m.strip() for m in text.split(",")]
+    bad = [m for m in names if m not in METHODS]
+    if bad or len(set(names)) != len(names):
+        why = f"unknown method {bad[0]!r}" if bad else "a method named twice"
+        raise argparse.ArgumentTypeError(f"{why} in {text!r} (known: {', '.join(METHODS)})")
+    return names
+
+
 # ----------------------------------------------------------------------------- one core
 def pin_one_core() -> int:
     """Pin this process to one CPU and keep OpenCV/BLAS single-threaded; returns the CPU."""
@@ -328,7 +343,7 @@ def _run_suite(args) -> int:
         raise ValueError(f"--seed must be >= 0, got {args.seed}")
     max_pixels = _max_pixels(args.max_megapixels)
     pin_one_core()
-    methods = [m.strip() for m in args.methods.split(",")] if args.methods else list(METHODS)
+    methods = args.methods or list(METHODS)
     out = Path(args.out) if args.out else Path("out") / f"bench-{args.suite}-n{args.n}-seed{args.seed}"
     report = widebench.run_suite(args.suite, args.n, args.seed, methods, out, Path(args.cache_dir),
                                  selfcheck=not args.no_selfcheck, quiet=args.quiet, max_pixels=max_pixels)
@@ -346,7 +361,7 @@ def _run(args) -> int:
         return _run_suite(args)
     cpu = pin_one_core()
     scene = load_scene_from_args(args)
-    methods = [m.strip() for m in args.methods.split(",")] if args.methods else list(METHODS)
+    methods = args.methods or list(METHODS)
     cache = Path(args.cache_dir)
     results = bench(scene, methods, cache, args.repeats, args.quiet)
     report = {"bench": results}
@@ -402,7 +417,8 @@ def register(sub) -> None:
                        description="Render a scene once (cached), then time and score the paper method, the fast method and "
                        "icpReconstructor's EpipolarReconstructor (when installed) on the same frames, pinned to one core.")
     add_scene_options(p)
-    p.add_argument("--methods", default=None, help=f"comma-separated subset of {','.join(METHODS)} (default: all)")
+    p.add_argument("--methods", type=method_list, default=None, metavar="LIST",
+                   help=f"comma-separated subset of {','.join(METHODS)} (default: all)")
     p.add_argument("--repeats", type=int, default=3, help="passes over the sequence per method; a frame's time is its fastest (default 3)")
     p.add_argument("--cache-dir", default=str(Path("out") / "bench-cache"), help="where rendered sessions are cached (default out/bench-cache)")
     p.add_argument("--scaling", action="store_true", help="also the resolution (0.5x, 1x, 2x) and voxel (50^3, 100^3, 200^3) study")

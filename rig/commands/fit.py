@@ -1,11 +1,11 @@
-"""``ctr-bench fit RECON_DIR --model M --params LIST --out robot_fitted.toml``: calibrate a kinematic model.
+"""``ctr-bench fit RECON_DIR --model M --fit-params LIST --out robot_fitted.toml``: calibrate a kinematic model.
 
 Estimates robot parameters by nonlinear least squares (scipy.optimize.least_squares,
 robust loss) over every frame with joint values and a measured backbone: the
 residuals are the measured backbone points minus the model backbone at matching
 arc lengths, plus the tip. Reports each value with its 95 % confidence interval
 (cov = s^2 (J^T J)^-1 at the solution, and a frame-clustered one that allows
-correlated errors along a backbone). With --holdout K every K-th frame is left
+correlated errors along a backbone). With --holdout-every K every K-th frame is left
 out of the fit and the nominal and fitted models are compared on those frames.
 Writes the fitted robot as a TOML robot file (its [robot] table is a scene's; its
 [actuator] table holds joint offsets) and a JSON report next to it.
@@ -21,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .verify import _f, add_data_options, load_dataset, parse_frames
+from .options import parse_frames
+from .verify import _f, add_data_options, load_dataset
 
-PARAMS_EPILOG = """parameter names (--params, comma separated; <tube> is a tube name or index, 0 = outermost):
+PARAMS_EPILOG = """parameter names (--fit-params, comma separated; <tube> is a tube name or index, 0 = outermost):
   <tube>.precurvature_per_mm   <tube>.curved_length_mm   <tube>.youngs_modulus_gpa (relative to the other tubes)
   <tube>.length_mm, <tube>.poisson_ratio (compliant model: transmission twist, E I / G J)
   stiffness_ratio (2 tubes: E I inner / E I outer)   stiffness_ratio.<tube> (E I tube / E I outermost)
@@ -32,7 +33,8 @@ PARAMS_EPILOG = """parameter names (--params, comma separated; <tube> is a tube 
 
 example:
   ctr-bench fit out/plastic --model compliant --robot scenes/plastic-nominal.toml \\
-      --params inner.precurvature_per_mm,stiffness_ratio,rotation_offset_deg.inner --holdout 4 --out robot_fitted.toml
+      --fit-params inner.precurvature_per_mm,stiffness_ratio,rotation_offset_deg.inner --holdout-every 4 \\
+      --out robot_fitted.toml
   ctr-bench verify out/plastic --model compliant --robot robot_fitted.toml
 """
 
@@ -113,8 +115,8 @@ def _run(args) -> int:
     if out.suffix != ".toml":
         raise ValueError(f"--out {out}: expected a .toml robot file name")
     ds = load_dataset(args.recon, args.session, args.robot, args.model, parse_frames(args.frames))
-    params = parse_params(args.params, ds.state)  # bad names fail before any work
-    fit_frames, held = split_holdout(ds.frames, args.holdout)
+    params = parse_params(args.fit_params, ds.state)  # bad names fail before any work
+    fit_frames, held = split_holdout(ds.frames, args.holdout_every)
     print(f"fitting {len(params)} parameters of the {ds.state.model} model to {len(fit_frames)} frames "
           f"({ds.source}; {len(held)} held out, {len(ds.skipped)} skipped); starting from {ds.robot_source}")
     t0 = time.perf_counter()
@@ -131,7 +133,7 @@ def _run(args) -> int:
     report = {"format": "ctr-bench-fit", "version": 1, "model": ds.state.model, "measured": ds.source,
               "recon_dir": str(ds.recon_dir), "session": str(ds.session_dir), "start_robot": ds.robot_source,
               "loss": args.loss, "f_scale_mm": args.f_scale, "step_mm": args.step, "tip_weight": args.tip_weight,
-              "holdout": args.holdout, "fit_frames": res.frames, "held_out_frames": [f.index for f in held],
+              "holdout": args.holdout_every, "fit_frames": res.frames, "held_out_frames": [f.index for f in held],
               "dropped_frames": [{"frame": i, "reason": w} for i, w in res.dropped],
               "parameters": res.table(), "rms_mm": res.rms_mm, "nfev": res.nfev, "seconds": secs,
               "message": res.message, "warnings": res.warnings}
@@ -169,8 +171,10 @@ def register(sub) -> None:
                        description=__doc__.split("\n\n", 1)[1].strip(), epilog=PARAMS_EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     add_data_options(p)
-    p.add_argument("--params", required=True, metavar="LIST", help="comma-separated parameter names (below)")
-    p.add_argument("--holdout", type=int, default=None, metavar="K", help="hold every K-th frame out of the fit and test on them")
+    # not --params (a method's parameter FILE in run, reconstruct, experiment, tune) nor --holdout (tune's held-out scenes)
+    p.add_argument("--fit-params", required=True, metavar="LIST", help="comma-separated robot parameters to estimate (below)")
+    p.add_argument("--holdout-every", type=int, default=None, metavar="K",
+                   help="hold every K-th frame out of the fit and test on them")
     p.add_argument("--loss", default="soft_l1", choices=("linear", "soft_l1", "huber", "cauchy", "arctan"),
                    help="least-squares loss (default soft_l1: robust to reconstruction outliers)")
     p.add_argument("--f-scale", type=float, default=1.0, metavar="MM", help="residual scale of the robust loss (mm, default 1)")

@@ -3,34 +3,37 @@ from __future__ import annotations
 
 from pathlib import Path
 
-DEFAULT_SCENE = Path(__file__).resolve().parents[2] / "scenes" / "paper.toml"
+from rig.scenefiles import scene_path
+
+from .options import count
+
+#: The scene run, render and bench use without a SCENE: the bundled paper scene (a checkout's
+#: scenes/paper.toml, a wheel's rig/scenes/paper.toml; rig/scenefiles.py).
+DEFAULT_SCENE = scene_path("paper.toml")
 
 
 def add_scene_options(p) -> None:
-    """Options shared by every command that renders a scene."""
-    p.add_argument("scene", nargs="?", default=None, help=f"scene TOML file (default: {DEFAULT_SCENE.relative_to(DEFAULT_SCENE.parents[1])})")
-    p.add_argument("--frames", type=int, default=None, help="render only the first N robot frames")
-    p.add_argument("--background-frames", type=int, default=None, help="override the number of background frames")
+    """Options shared by every command that renders a scene (counts: --n-*; --frames LIST selects frames elsewhere)."""
+    p.add_argument("scene", nargs="?", default=None, help="scene TOML file (default: scenes/paper.toml, shipped with ctr-bench)")
+    p.add_argument("--n-frames", type=count(1), default=None, metavar="N", help="render only the first N robot frames")
+    p.add_argument("--n-background-frames", type=count(0), default=None, metavar="N",
+                   help="override the number of background frames")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.add_argument("--model", choices=["bending", "compliant"], default=None,
                    help="render with this kinematic model instead of the scene's robot.model")
 
 
 def load_scene_from_args(args):
-    """The scene named by ``args`` with --frames/--background-frames applied."""
+    """The scene named by ``args`` (default :data:`DEFAULT_SCENE`) with --n-frames/--n-background-frames applied."""
     from dataclasses import replace
 
     from twin.scene import load_scene
 
     scene = load_scene(args.scene or DEFAULT_SCENE)
-    if args.frames is not None:
-        if args.frames < 1:
-            raise ValueError(f"--frames must be >= 1, got {args.frames}")
-        scene = scene.with_frames(scene.joints[: args.frames])
-    if args.background_frames is not None:
-        if args.background_frames < 0:
-            raise ValueError(f"--background-frames must be >= 0, got {args.background_frames}")
-        scene = replace(scene, background_frames=args.background_frames)
+    if args.n_frames is not None:
+        scene = scene.with_frames(scene.joints[: args.n_frames])
+    if args.n_background_frames is not None:
+        scene = replace(scene, background_frames=args.n_background_frames)
     if getattr(args, "model", None):
         scene = replace(scene, model=args.model)
     return scene

@@ -87,7 +87,7 @@ def _run(args) -> int:
     results = {}
     for plat in platforms:
         env = dict(os.environ, CTR_BENCH_GL=plat, PYOPENGL_PLATFORM=plat, LP_NUM_THREADS="1", OMP_NUM_THREADS="1")
-        cmd = [sys.executable, "-m", "rig.commands.render_bench", "--worker", args.scene or "", str(args.frames)]
+        cmd = [sys.executable, "-m", "rig.commands.render_bench", "--worker", args.scene or "", str(args.n_frames)]
         print(f"rendering with {plat} on one core ...", file=sys.stderr)
         proc = subprocess.run(cmd, env=env, capture_output=True, text=True)
         if proc.returncode != 0:
@@ -116,9 +116,12 @@ def _run(args) -> int:
 
 
 def register(sub) -> None:
+    from .options import count
+
     p = sub.add_parser("render-bench", help="twin rendering throughput per OpenGL platform (one core) and truth checks")
-    p.add_argument("scene", nargs="?", default=None, help="scene TOML file (default scenes/paper.toml)")
-    p.add_argument("--frames", type=int, default=8, help="robot frames to time (default 8)")
+    p.add_argument("scene", nargs="?", default=None, help="scene TOML file (default: scenes/paper.toml, shipped with ctr-bench)")
+    p.add_argument("--n-frames", type=count(1), default=8, metavar="N",
+                   help="robot frames to time, evenly spaced over the scene (default 8)")
     p.add_argument("--platform", action="append", choices=["osmesa", "egl"], help="platform(s) to time (default: all available)")
     p.add_argument("--json", action="store_true", help="print one JSON object keyed by platform")
     p.set_defaults(func=_run)

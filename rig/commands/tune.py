@@ -246,6 +246,8 @@ def _run(args) -> int:
 
 
 def register(sub) -> None:
+    from .reconstruct import method_name
+
     p = sub.add_parser("tune", help="tune a method's parameters on twin scenes",
                        description="Render the scenes once (cached), search the method's parameters (threshold, "
                        "structuring elements, eigenbackground count, voxel resolution; or the fast method's) with "
@@ -253,7 +255,7 @@ def register(sub) -> None:
                        "tie-break), plot the error against each parameter, and write a parameter file for "
                        "ctr-bench reconstruct --params. See docs/tuning.md.")
     p.add_argument("scenes", nargs="+", help="scene TOML files or directories of them (e.g. scenes/tune)")
-    p.add_argument("--method", default="paper", help="method to tune: paper (default) or fast")
+    p.add_argument("--method", default="paper", type=method_name, help="method to tune: paper (default) or fast")
     p.add_argument("--params", default=None, metavar="FILE", help="start from this parameter file instead of the defaults")
     p.add_argument("--out", required=True, help="parameter file to write (.toml; not overwritten)")
     p.add_argument("--report", default=None, help="directory for history.csv, summary.json and the sensitivity plots "

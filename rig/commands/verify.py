@@ -20,6 +20,8 @@ import numpy as np
 
 from rig.backbone_csv import read_backbone_csv
 
+from .options import parse_frames  # the one --frames LIST parser (rig/commands/import_session.py imports it from here)
+
 
 @dataclass
 class Dataset:
@@ -66,25 +68,6 @@ def _recon_backbones(recon: Path, summary: dict) -> dict:
         p = recon / "frames" / f"{int(rec['frame']):06d}.csv"
         if p.exists():
             out[int(rec["frame"])] = read_backbone_csv(p)
-    return out
-
-
-def parse_frames(text: str | None):
-    """``"3,7,10-12"`` -> {3, 7, 10, 11, 12}; None -> None."""
-    if text is None:
-        return None
-    out = set()
-    try:
-        for part in text.split(","):
-            part = part.strip()
-            if not part:
-                continue
-            a, sep, b = part.partition("-")
-            out.update(range(int(a), int(b) + 1) if sep else [int(a)])
-    except ValueError:
-        raise ValueError(f"--frames {text!r}: expected frame numbers and ranges like 3,7,10-12") from None
-    if not out:
-        raise ValueError(f"--frames {text!r}: no frames")
     return out
 
 
@@ -135,6 +118,9 @@ def load_dataset(path, session=None, robot=None, model=None, frames=None) -> Dat
     else:
         if "robot" not in sess.meta:
             raise ValueError(f"{sess.dir / 'session.json'}: no nominal robot recorded; pass --robot ROBOT.toml")
+        if sess.meta["robot"].get("diameters_only"):
+            raise ValueError(f"{sess.dir / 'session.json'}: records only the tube diameters (ctr-bench import "
+                             "--tube-diameters-mm), not a robot model; pass --robot ROBOT.toml")
         r, m = robot_from_dict(sess.meta["robot"], str(sess.dir / "session.json"))
         state = ModelState(r, m)
         robot_source = str(sess.dir / "session.json")
