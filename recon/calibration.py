@@ -199,7 +199,7 @@ class CalibrationParams:
         Sub-pixel corner refinement: the saddle point of a quadratic fitted to the
         smoothed image (unbiased for any corner angle, no pixel locking), or OpenCV's
         ``cornerSubPix``.
-    model : int
+    distortion_model : int
         The OpenCV distortion model: 4 (k1 k2 p1 p2), 5 (+ k3), 8 (+ k4 k5 k6, rational),
         12 (+ s1..s4, thin prism) or 14 (+ tau_x tau_y, tilted sensor) coefficients.
     distortion : str
@@ -231,7 +231,7 @@ class CalibrationParams:
     outlier_factor: float = 3.0
     outlier_floor_px: float = 0.3
     refine: str = "saddle"
-    model: int = 5
+    distortion_model: int = 5
     distortion: str = "auto"
     intrinsics_from_stereo: bool = True
     joint_refinement: bool = True
@@ -242,10 +242,11 @@ class CalibrationParams:
     def __post_init__(self):
         if self.refine not in ("saddle", "cornersubpix", "none"):
             raise ValueError(f"refine must be 'saddle', 'cornersubpix' or 'none', got {self.refine!r}")
-        if self.model not in MODEL_SIZES:
-            raise ValueError(f"--model: OpenCV models have {', '.join(map(str, MODEL_SIZES))} coefficients, got {self.model!r}")
+        if self.distortion_model not in MODEL_SIZES:
+            raise ValueError(f"--distortion-model: OpenCV models have {', '.join(map(str, MODEL_SIZES))} coefficients, "
+                             f"got {self.distortion_model!r}")
         if self.distortion != "auto":
-            parse_terms(self.distortion, self.model)
+            parse_terms(self.distortion, self.distortion_model)
         if self.min_views < 3:
             raise ValueError(f"--min-views must be at least 3, got {self.min_views}")
         if self.min_stereo_pairs < 1:
@@ -874,7 +875,7 @@ def _identifiable_model(terms: tuple, D: np.ndarray, std: dict) -> tuple:
 
 
 def calibrate_camera(detections: list, board: BoardSpec, name: str, params: CalibrationParams | None = None) -> CameraCalibration:
-    """One camera's intrinsics (``cv2.calibrateCamera``, the OpenCV model ``params.model``) with view rejection.
+    """One camera's intrinsics (``cv2.calibrateCamera``, the OpenCV model ``params.distortion_model``) with view rejection.
 
     Views not found or blurred are rejected up front; then views whose board is too
     oblique, then reprojection outliers one at a time (recalibrating after each).
@@ -891,15 +892,16 @@ def calibrate_camera(detections: list, board: BoardSpec, name: str, params: Cali
     obj = board.object_points().astype(np.float32)
 
     _require_views(len(views), records, name, board, params)
-    terms = MODEL_TERMS[params.model] if params.distortion == "auto" else parse_terms(params.distortion, params.model)
-    n_dist = max(5, params.model)
+    n_model = params.distortion_model
+    terms = MODEL_TERMS[n_model] if params.distortion == "auto" else parse_terms(params.distortion, n_model)
+    n_dist = max(5, n_model)
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     std = {}
 
     def run(vs):
         out = cv2.calibrateCameraExtended(
             [obj] * len(vs), [v.corners.astype(np.float32) for v in vs], size, None, None,
-            flags=calibration_flags(terms, params.model), criteria=crit,
+            flags=calibration_flags(terms, n_model), criteria=crit,
         )
         K, D, rvecs, tvecs, sd = out[1], out[2].ravel()[:n_dist], out[3], out[4], out[5].ravel()
         std.clear()

@@ -16,8 +16,8 @@ import sys
 __all__ = ["main", "CLIError", "COMMANDS"]
 
 #: Sub-command modules, in the order ``ctr-bench --help`` lists them.
-COMMANDS = ("run", "render", "reconstruct", "bench", "render_bench", "calibrate", "experiment", "report", "export", "verify", "fit",
-            "tune", "scenes")
+COMMANDS = ("run", "render", "reconstruct", "import_session", "bench", "render_bench", "calibrate", "experiment", "report",
+            "export", "verify", "fit", "tune", "scenes")
 
 
 class CLIError(Exception):

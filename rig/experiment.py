@@ -349,6 +349,7 @@ class ExperimentRunner:
         self._writer = None
         self._last_commit = None
         self._mm_px = None
+        self._joints_unobserved = None
         if method is not None:
             from recon.methods import get_method
 
@@ -376,6 +377,9 @@ class ExperimentRunner:
                 "started_unix_s": time.time(), **self.extra_meta}
         if self.method:
             meta["live_method"] = self.method
+        self._joints_unobserved = getattr(self.rig, "joints_unobserved", None)
+        if self._joints_unobserved:
+            self.log(f"joints not recorded (frames.csv leaves them empty): {self._joints_unobserved}")
         self._writer = SessionWriter(self.out, self.rig.calibration, source=self.rig.source,
                                      n_tubes=self.rig.n_tubes, meta=meta)
         self._events = open(self.out / "experiment.jsonl", "a")
@@ -520,7 +524,8 @@ class ExperimentRunner:
         t_grabbed = time.monotonic()
         self._check_sizes(pair)
         index = len(self.result.frames)
-        joints = self.rig.joint_map.to_joints(pos)
+        # Joints the images do not depend on (video files, a simulated actuator) stay empty: never invented.
+        joints = None if self._joints_unobserved else self.rig.joint_map.to_joints(pos)
         t_s = pair.timestamp_s - self.t0
         self._writer.add_frame(index, pair.images, t_s=t_s, joints=joints,
                                camera_times_s=pair.times_s(self.t0), truth=pair.truth)

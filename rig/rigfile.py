@@ -232,6 +232,32 @@ class Rig:
             return self.replay_world.session.meta.get("source", "rig")
         return "rig"
 
+    @property
+    def joints_unobserved(self) -> str | None:
+        """Why the actuator's joints do not describe the recorded images, or None when they do.
+
+        Joints go into frames.csv only when the actuator moves what the cameras see:
+        twin cameras render the actuator's joints, replay cameras come with the joints
+        recorded with their frames, live cameras watch the arduino's robot. Video files
+        (recorded beforehand) or a simulated actuator next to real images would put
+        invented joints into the session, which verify and fit would then trust.
+        """
+        cams, act = self.spec.cameras["kind"], self.spec.actuator["kind"]
+        if cams == "twin":
+            return None
+        if cams == "replay":
+            if act != "replay":
+                return f"replayed images with the {act} actuator, which does not move them"
+            if any(f.extension_mm is None for f in self.replay_world.session.frames):
+                return "the replayed session records no joint values for some frames"
+            return None
+        files = [n for n, c in self.cameras.cameras.items() if getattr(c, "kind", None) == "file"]
+        if files:
+            return f"camera(s) {', '.join(files)} play video files recorded beforehand"
+        if act == "twin":
+            return "live cameras with the twin (simulated) actuator, which moves no robot they see"
+        return None
+
     def meta(self) -> dict:
         """Facts for session.json: the rig file, the backends and (with a scene) the robot."""
         s = self.spec
@@ -249,6 +275,8 @@ class Rig:
         }
         if s.calibration_path is not None:
             out["calibration_file"] = str(s.calibration_path)
+        if self.joints_unobserved is not None:
+            out["joints_not_recorded"] = self.joints_unobserved
         if s.scene is not None:
             from twin.record import robot_to_dict
 

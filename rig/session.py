@@ -255,13 +255,13 @@ class Session:
 
     @property
     def robot_tube_radii_mm(self):
-        """(outermost, innermost) tube radius (mm) of the robot in session.json, or None without one."""
+        """(outermost, innermost) tube radius (mm) of the robot in session.json (one tube: both the same), or None without one."""
         tubes = (self.meta.get("robot") or {}).get("tubes") or []
         try:
             radii = [float(t["outer_diameter_mm"]) / 2 for t in tubes]
         except (KeyError, TypeError, ValueError):
             raise SessionError(f"{self.dir / 'session.json'}: robot.tubes: each tube needs a numeric outer_diameter_mm") from None
-        return (radii[0], radii[-1]) if len(radii) >= 2 else None
+        return (radii[0], radii[-1]) if radii else None
 
     @property
     def has_truth(self) -> bool:

@@ -73,7 +73,7 @@ def test_calibrate_camera_recovers_the_longer_models(model):
     truth = Camera("side", 1280, 960, K, np.array(DIST[model]))
     dets = _detections(truth, _board_poses(25, seed=model), "side")
     terms = "k1 k2 p1 p2 k3 k4 k5 k6" + (" s1 s2 s3 s4 tau_x tau_y" if model == 14 else "")
-    cal = calibrate_camera(dets, BOARD, "side", CalibrationParams(model=model, distortion=terms))
+    cal = calibrate_camera(dets, BOARD, "side", CalibrationParams(distortion_model=model, distortion=terms))
     assert cal.dist.size == model and cal.rms_px < 1e-3
     assert _held_out_error_px(cal, truth, seed=100 + model) < 0.01
     if model == 8:  # with thin prism and tilt the principal point trades against them: only the 8-term K is pinned down
@@ -85,8 +85,8 @@ def test_the_plumb_bob_model_falls_short_on_a_strongly_rational_lens():
     ``--model 8`` really switches OpenCV's rational model on."""
     truth = Camera("side", 1280, 960, K, np.array([2.0, 0, 0, 0, 0, 2.5, 0, 0]))
     dets = _detections(truth, _board_poses(25, seed=8), "side")
-    five = calibrate_camera(dets, BOARD, "side", CalibrationParams(model=5))
-    eight = calibrate_camera(dets, BOARD, "side", CalibrationParams(model=8, distortion="k1 k2 p1 p2 k3 k4 k5 k6"))
+    five = calibrate_camera(dets, BOARD, "side", CalibrationParams(distortion_model=5))
+    eight = calibrate_camera(dets, BOARD, "side", CalibrationParams(distortion_model=8, distortion="k1 k2 p1 p2 k3 k4 k5 k6"))
     assert _held_out_error_px(five, truth, seed=3) > 0.01 > 0.001 > _held_out_error_px(eight, truth, seed=3)
 
 
@@ -126,7 +126,7 @@ def _nudge() -> np.ndarray:
 @pytest.mark.parametrize("bad, why", [("k1 k2 p1", "together"), ("k1 k4", "not in the 5-coefficient model"), ("k1 s1", "not in")])
 def test_term_sets_are_checked(bad, why):
     with pytest.raises(ValueError, match=why):
-        CalibrationParams(model=5, distortion=bad)
+        CalibrationParams(distortion_model=5, distortion=bad)
 
 
 # ----------------------------------------------------------------------------- formats
@@ -225,7 +225,7 @@ def test_import_conflicts_and_format_errors(rig_parts, tmp_path, capsys):
     out = str(tmp_path / "rig.json")
     cases = [
         (["--import-kalibr", str(tmp_path / "camchain.yaml"), "--world-from", str(tmp_path / "world.yaml")],
-         "world.yaml: T_side_top differs from the side pose of"),
+         "world.yaml: T_side_top differs from the one of"),
         (["--import-kalibr", str(tmp_path / "camchain.yaml"), "--image-size", "640", "480", "--world-from", str(tmp_path / "world.yaml")],
          "resolution 1280x960 disagrees with --image-size"),
         (["--import-stereo-calib", str(tmp_path / "nope.yml"), str(tmp_path / "nope2.yml"), "--world-from", str(tmp_path / "world.yaml")],

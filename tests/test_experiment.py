@@ -35,11 +35,13 @@ from rig.camera import Camera, CameraError, CameraPair, EndOfStream, OpenCVCamer
 from rig.cli import main as cli
 from rig.experiment import ExperimentRunner, SequenceError, load_sequence
 from rig.rigfile import RigFileError, load_rig_file, rig_file_from_dict
+from rig.scenefiles import scenes_dir
 from rig.session import Session
 from rig.virtual import Trapezoid, TwinActuator
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENE = ROOT / "scenes" / "paper.toml"
+SCENES = scenes_dir()
+SCENE = SCENES / "paper.toml"
 REPORT: dict = {}
 
 
@@ -366,7 +368,11 @@ time_scale = 20.0
     s = Session(out)
     assert s.meta["source"] == "rig" and s.meta["camera_backend"] == "opencv"
     assert len(s.frames) == 2 and s.meta["background_frames"] == 6     # 8 frames per file: replay ended
-    assert s.frames[1].extension_mm == pytest.approx((50.0, 75.0))
+    # The videos were recorded beforehand: the twin actuator's 50/75 mm would be invented joints.
+    assert all(f.extension_mm is None and f.rotation_deg is None for f in s.frames)
+    assert "video files" in s.meta["joints_not_recorded"]
+    rows = _rows(out)
+    assert rows and all(r["extension_1_mm"] == "" and r["rotation_1_deg"] == "" for r in rows)
 
 
 def test_replay_backend_replays_session(twin_session, tmp_path):
@@ -480,7 +486,7 @@ def test_rig_file_errors_name_file_and_key(tmp_path):
     err("this is = not toml [", "not valid TOML")
     # --serial only for an arduino actuator
     with pytest.raises(RigFileError, match="actuator.kind: --serial"):
-        load_rig_file(ROOT / "scenes" / "rig-twin.toml", serial="/dev/pts/9")
+        load_rig_file(SCENES / "rig-twin.toml", serial="/dev/pts/9")
     # a calibration whose cameras are not the rig's
     with pytest.raises(RigFileError, match="calibration"):
         rig_file_from_dict({"format": "ctr-bench-rig", "scene": str(SCENE), "calibration": str(tmp_path / "none.json"),
@@ -511,20 +517,20 @@ def test_sequence_errors_name_file_and_key(tmp_path):
         'by = { insertion_mm = 15.0 }\n', "steps[1].steps[0].by: insertion_mm would be 60 (steps[1] 4/5)",
         limits=SoftLimits((0.0, 50.0), (-90.0, 90.0)))
     # the CLI prints it as one line naming the file
-    seq = load_sequence(ROOT / "scenes" / "paper-sequence.toml")
+    seq = load_sequence(SCENES / "paper-sequence.toml")
     assert seq.grab_count == 20 and seq.background_count >= 6
 
 
 def test_example_files_load():
     """The shipped rig files and the paper sequence are valid (the lab rig needs no hardware to load)."""
-    twin = load_rig_file(ROOT / "scenes" / "rig-twin.toml")
-    ard = load_rig_file(ROOT / "scenes" / "rig-twin-arduino.toml", serial="/dev/pts/5")
-    lab = load_rig_file(ROOT / "scenes" / "rig-lab.toml")
+    twin = load_rig_file(SCENES / "rig-twin.toml")
+    ard = load_rig_file(SCENES / "rig-twin-arduino.toml", serial="/dev/pts/5")
+    lab = load_rig_file(SCENES / "rig-lab.toml")
     assert twin.cameras["kind"] == "twin" and twin.actuator["kind"] == "twin"
     assert ard.actuator["port"] == "/dev/pts/5"
     assert lab.cameras["kind"] == "opencv" and "dc1394src" in lab.cameras["per_camera"]["side"]["source"]
     assert lab.actuator["port"] == "/dev/ttyACM0"
-    seq = load_sequence(ROOT / "scenes" / "paper-sequence.toml")
+    seq = load_sequence(SCENES / "paper-sequence.toml")
     from rig.experiment import check_limits, grab_targets
 
     for spec in (twin, ard, lab):
@@ -540,8 +546,8 @@ def test_example_files_load():
 
 
 def test_dry_run(capsys):
-    assert cli(["experiment", str(ROOT / "scenes" / "paper-sequence.toml"), "--rig",
-                str(ROOT / "scenes" / "rig-lab.toml"), "--out", "/nonexistent/never", "--dry-run"]) == 0
+    assert cli(["experiment", str(SCENES / "paper-sequence.toml"), "--rig",
+                str(SCENES / "rig-lab.toml"), "--out", "/nonexistent/never", "--dry-run"]) == 0
     out = capsys.readouterr().out
     assert "20 frame pairs" in out and "opencv" in out
 

@@ -12,7 +12,7 @@ import signal
 import sys
 from pathlib import Path
 
-from .reconstruct import add_report_options
+from .reconstruct import add_report_options, method_name
 
 
 def _sigterm(signum, frame):
@@ -153,7 +153,7 @@ def register(sub) -> None:
     p.add_argument("sequence", help="sequence TOML file, e.g. scenes/paper-sequence.toml")
     p.add_argument("--rig", required=True, help="rig TOML file, e.g. scenes/rig-twin.toml")
     p.add_argument("--out", required=True, help="session directory to create")
-    p.add_argument("--reconstruct", metavar="METHOD", default=None,
+    p.add_argument("--reconstruct", metavar="METHOD", default=None, type=method_name,
                    help="reconstruct every pair live with METHOD (paper, fast); outputs in OUT/live/")
     p.add_argument("--params", metavar="FILE", default=None, help="TOML parameter file of the --reconstruct method")
     p.add_argument("--serial", metavar="URL", default=None,
