@@ -132,6 +132,11 @@ class FastParams:
     jitter_compensation : bool
         Measure each frame's image shift against the background's static
         edges (camera jitter) and undo it before triangulating.
+    retry_min_dn : float
+        A view whose end stops short of where the other view puts the tip is
+        followed once more beyond its end with this lower edge threshold (gray
+        levels; the inner tube can stand only 5-8 levels off a backdrop); the
+        tip check then judges the result again.
     max_tip_mismatch_px : float
         The tip is one point, in one epipolar plane: when the two views'
         silhouette ends lie in planes farther apart than this plus the inner
@@ -172,6 +177,7 @@ class FastParams:
     max_ray_gap_mm: float = 1.0
     max_base_gap_mm: float = 6.0
     jitter_compensation: bool = True
+    retry_min_dn: float = 3.0
     max_tip_mismatch_px: float = 8.0
     jump: JumpLimits = field(default_factory=JumpLimits)
 
@@ -608,21 +614,32 @@ def _transition(matched, s_tr: dict, q: np.ndarray, spl, base_ext: float, points
     return transition_s, _interp_rows(np.array([transition_s]), _arc(points), points)[0]
 
 
-def _check_tip_agreement(model: FastModel, views: dict, sa_: _ViewSamples, sb_: _ViewSamples, params: FastParams) -> None:
-    """Raise :class:`~recon.errors.FrameError` when the views' ends lie farther apart along the tube than
-    ``max_tip_mismatch_px`` plus a tube diameter (one view lost the tube before its tip, or followed something else)."""
+def _short_view(model: FastModel, views: dict, sa_: _ViewSamples, sb_: _ViewSamples, params: FastParams) -> str | None:
+    """The view whose end lies short of where the other view's tip puts it by more than ``max_tip_mismatch_px``
+    plus a tube diameter; None when the views agree. Raises :class:`~recon.errors.FrameError` when both overshoot
+    each other (a view followed something else)."""
     a, b = model.pair
     short = _tip_mismatch(model, views, sa_, sb_)
     # Each view's silhouette ends at the rim of the end face that view sees: up to a tube diameter apart.
     cap_px = 2.0 * max(model.views[n].inner_radius_px for n in (a, b))
-    if min(abs(v) for v in short.values()) > params.max_tip_mismatch_px + cap_px:
-        n_short = [n for n in (a, b) if short[n] > 0]
-        if len(n_short) == 1:
-            n = n_short[0]
-            raise FrameError(f"the views disagree on the tip: {n}'s ends {short[n]:.0f} px along the tube short of where "
-                             f"{b if n == a else a}'s tip puts it (one view lost the tube before its tip, or followed something else)")
+    if min(abs(v) for v in short.values()) <= params.max_tip_mismatch_px + cap_px:
+        return None
+    n_short = [n for n in (a, b) if short[n] > 0]
+    if len(n_short) != 1:
         raise FrameError(f"the views disagree on the tip by {min(abs(v) for v in short.values()):.0f} px along the tube "
                          "(epipolar planes of the two silhouette ends): a view followed something else")
+    return n_short[0]
+
+
+def _check_tip_agreement(model: FastModel, views: dict, sa_: _ViewSamples, sb_: _ViewSamples, params: FastParams) -> None:
+    """Raise :class:`~recon.errors.FrameError` when the views' ends lie farther apart along the tube than
+    ``max_tip_mismatch_px`` plus a tube diameter (one view lost the tube before its tip, or followed something else)."""
+    n = _short_view(model, views, sa_, sb_, params)
+    if n is not None:
+        a, b = model.pair
+        short = _tip_mismatch(model, views, sa_, sb_)[n]
+        raise FrameError(f"the views disagree on the tip: {n}'s ends {short:.0f} px along the tube short of where "
+                         f"{b if n == a else a}'s tip puts it (one view lost the tube before its tip, or followed something else)")
 
 
 class FastReconstructor:
@@ -681,6 +698,14 @@ class FastReconstructor:
         lap = time.perf_counter()
         detail["rays"] = 1e3 * (lap - t)
         tol = 2.0 / float(rig[a].K[0, 0])  # ~2 px of epipolar angle
+        n = _short_view(model, views, sa_, sb_, params)
+        if n is not None:
+            # One view lost a faint stretch of tube before its tip: follow it once more, more sensitively,
+            # and let the tip check (and the self-check after it) judge what that finds.
+            views[n] = extract_view(model.views[n], frames[n], params, follow_min_dn=params.retry_min_dn)
+            smp = _view_samples(model, n, views[n], params.sample_step_px)
+            sa_, sb_ = (smp, sb_) if n == a else (sa_, smp)
+            detail["retry"] = 1e3 * (time.perf_counter() - lap)
         _check_tip_agreement(model, views, sa_, sb_, params)
         s_a, s_b, da, db, ca, cb, how = _correspond(sa_, sb_, tol)
         X, gap = triangulate_rays(model.epipolar.center_a, da, model.epipolar.center_b, db)

@@ -40,7 +40,7 @@ Pixel coordinates follow OpenCV: (0, 0) is the centre of the top-left pixel.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -1335,6 +1335,7 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
         border: the robot may continue out of view.
     """
     H, W = model.shape
+    edge = 2.0
     p, t = np.asarray(p, np.float64), _unit(np.asarray(t, np.float64))
     seen = np.zeros((0, 2)) if visited is None else np.asarray(visited, np.float64)[::2]
     tr = _Track(recent=p[None], last_hit=p.copy(), max_misses=max(2, int(np.floor(max_gap_px / step)) + 1), confirm=confirm)
@@ -1360,12 +1361,14 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
             _add_ridge_hits(model, frame, coeff, seeds, t, half, nav, threshold, tr.wref(), max_off, tr.last_hit, seen, pr, width, hit)
         s_c = s + k + (pr.centers - seeds) @ t
         stop = confirmed = False
-        border = ((seeds[:, 0] < half) | (seeds[:, 1] < half) | (seeds[:, 0] > W - 1 - half) | (seeds[:, 1] > H - 1 - half)).tolist()
+        # At the border when the prediction itself nearly leaves the image: a tip a few px inside it is in
+        # view (profiles there keep their windows inside the image, recon._kernels._windows).
+        border = ((seeds[:, 0] < edge) | (seeds[:, 1] < edge) | (seeds[:, 0] > W - 1 - edge) | (seeds[:, 1] > H - 1 - edge)).tolist()
         hit, width_l = hit.tolist(), width.tolist()
         for i in range(nb):
             if border[i]:
                 if tr.on_tube:
-                    raise _border_error(model, seeds[i], half)
+                    raise _border_error(model, seeds[i], int(edge))
                 stop = True
                 break
             if hit[i] and tr.misses >= 2 and tr.widths and not 0.5 * tr.wref() < width_l[i] < 1.35 * tr.wref():
@@ -1462,13 +1465,16 @@ def _edge_limits(model: ViewModel, params) -> tuple:
     return rmax, nav, thr, thr_px, wmin, 2.0 * rmax, strong
 
 
-def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings: dict | None = None) -> ViewCenterline:
+def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings: dict | None = None,
+                 follow_min_dn: float | None = None) -> ViewCenterline:
     """Coarse path, fine profiles, spline, tip: the sub-pixel centerline of one view.
 
     ``params`` is a :class:`recon.fast.FastParams`; ``roi`` (coarse pixels)
     narrows the search for the robot (see :func:`coarse_path`). Stage times (ms) are
     added to ``timings`` when given (``coarse``, ``profiles``, ``fit``, ``follow``,
-    ``tip``).
+    ``tip``). ``follow_min_dn`` (gray levels) lowers ``params.edge_min_dn`` for
+    following the tube beyond the fitted profiles only (a second try, when the
+    other view's tip says the tube goes on).
 
     Raises
     ------
@@ -1501,8 +1507,14 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
     lap("fit")
     # The coarse path can stop short of the tip (a tube only a coarse pixel or two wide can drop out of the
     # coarse mask): follow the tube's edges at full resolution beyond the last accepted centre.
+    gap_px = 2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0)
+    if follow_min_dn is not None:
+        # More sensitive, but without bridging gaps: at this threshold a stretch of backdrop texture beyond a
+        # gap passes for a tube often enough (seen: two hits 50 px on, 20 px off the tube).
+        _, _, thr, thr_px, *_ = _edge_limits(model, replace(params, edge_min_dn=min(follow_min_dn, params.edge_min_dn)))
+        gap_px = 0.0
     follow = dict(half=int(np.ceil(rmax * 1.45 + 4)), threshold=thr, wmin=wmin, wmax=wmax, step=params.profile_step_px,
-                  tolerance=model.inner_radius_px, max_gap_px=2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0),
+                  tolerance=model.inner_radius_px, max_gap_px=gap_px,
                   nav=nav, threshold1=thr_px, strong=strong, energy=bool(getattr(params, "follow_energy", False)), visited=c[good])
     sb, p_end, t_end, r_end = _end_of(fitter, coef, s, good, d, width)
     start = (p_end, t_end, sb)
