@@ -629,6 +629,21 @@ def _traced_path(mask: np.ndarray, rect: tuple, origin: tuple, coarse_shape: tup
     return path, g, region, x0p, y0p
 
 
+def _border_seed(mask: np.ndarray, base_c, min_region: int) -> tuple | None:
+    """The coarse pixel (x, y) on the image border, in a foreground region of at least ``min_region`` pixels,
+    nearest to the base ``base_c`` (coarse px, outside the image); None when no such region crosses the border."""
+    n_lab, lab, stats, _ = cv2.connectedComponentsWithStats((mask > 0).view(np.uint8), connectivity=8)
+    edge = np.zeros(mask.shape, bool)
+    edge[0, :] = edge[-1, :] = edge[:, 0] = edge[:, -1] = True
+    ys, xs = np.nonzero(edge & (lab > 0))
+    big = stats[lab[ys, xs], cv2.CC_STAT_AREA] >= min_region
+    if not big.any():
+        return None
+    ys, xs = ys[big], xs[big]
+    k = int(np.argmin((xs - base_c[0]) ** 2 + (ys - base_c[1]) ** 2))
+    return int(xs[k]), int(ys[k])
+
+
 def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px: int = 1,
                 base_search_px: float = 24.0, min_region: int = 8) -> CoarseResult:
     """Coarse stage: background coefficients, robot region at the base, ordered path.
@@ -679,6 +694,13 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
             area, rect = a, rc
         if a >= min_region:
             break
+    if area < min_region and roi is None and model.start_px is not None:
+        # The base is out of view and nothing enters where its straight insertion axis does: a robot bent
+        # before the border enters elsewhere. Take the region crossing the border nearest to the base.
+        seed = _border_seed(mask, (model.base_px + 0.5) / f - 0.5, min_region)
+        if seed is not None:
+            area, _, _, rect = cv2.floodFill(mask, None, seed, 2, 0, 0, 8)
+            bx, by = float(seed[0]), float(seed[1])
     if area < min_region:
         if roi is not None:
             return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)

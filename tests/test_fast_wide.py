@@ -94,3 +94,18 @@ def test_textured_backdrop_the_tube_fades_into():
     r = prepare("fast", rig, backgrounds)(frames)
     e = backbone_errors(r.points_world_mm, pts)
     assert _px(rig, e["mean_error_mm"]) < 1.0 and _px(rig, e["tip_error_mm"]) < 3.0, e
+
+
+def test_base_out_of_view_robot_entering_away_from_its_axis():
+    """With the base out of view the robot is looked for where its straight insertion axis enters the image; a
+    robot bent before the border enters elsewhere (wide-3-21: 486 px away). The region crossing the border
+    nearest to the projected base is taken then, not a smaller or farther one."""
+    from recon.subpixel import _border_seed
+
+    mask = np.zeros((120, 160), np.uint8)
+    mask[60:120, 34:37] = 1        # the robot, crossing the bottom border at x = 34-36
+    mask[100:120, 150:153] = 1     # clutter crossing the same border farther from the base
+    mask[0:3, 10:12] = 1           # a speck on the top border, smaller than a region
+    assert _border_seed(mask, (0.0, 140.0), min_region=8) == (34, 119)
+    assert _border_seed(mask, (160.0, 140.0), min_region=8) == (152, 119)
+    assert _border_seed(np.zeros((10, 10), np.uint8), (0.0, 20.0), 8) is None
