@@ -680,6 +680,14 @@ class FastReconstructor:
             t = now
         return views
 
+    def _again(self, frames: dict, views: dict, samples: tuple, name: str, **kw) -> tuple:
+        """View ``name`` extracted once more (:func:`recon.subpixel.extract_view` keywords ``kw``) into ``views``;
+        returns the pair's samples with that view's replaced."""
+        model, params = self.model, self.params
+        views[name] = extract_view(model.views[name], frames[name], params, **kw)
+        smp = _view_samples(model, name, views[name], params.sample_step_px)
+        return (smp, samples[1]) if name == model.pair[0] else (samples[0], smp)
+
     def __call__(self, frames: dict) -> FastReconstruction:
         model, params = self.model, self.params
         timings = {}
@@ -700,11 +708,12 @@ class FastReconstructor:
         tol = 2.0 / float(rig[a].K[0, 0])  # ~2 px of epipolar angle
         n = _short_view(model, views, sa_, sb_, params)
         if n is not None:
-            # One view lost a faint stretch of tube before its tip: follow it once more, more sensitively,
-            # and let the tip check (and the self-check after it) judge what that finds.
-            views[n] = extract_view(model.views[n], frames[n], params, follow_min_dn=params.retry_min_dn)
-            smp = _view_samples(model, n, views[n], params.sample_step_px)
-            sa_, sb_ = (smp, sb_) if n == a else (sa_, smp)
+            # One view lost a faint stretch of tube before its tip: follow it once more, more sensitively.
+            # If it still ends short, the other view may have bridged a gap onto backdrop beyond the tip:
+            # follow that one again without bridging. The tip check (and the self-check after it) judges.
+            sa_, sb_ = self._again(frames, views, (sa_, sb_), n, follow_min_dn=params.retry_min_dn, bridge_gaps=False)
+            if _short_view(model, views, sa_, sb_, params) == n:
+                sa_, sb_ = self._again(frames, views, (sa_, sb_), b if n == a else a, bridge_gaps=False)
             detail["retry"] = 1e3 * (time.perf_counter() - lap)
         _check_tip_agreement(model, views, sa_, sb_, params)
         s_a, s_b, da, db, ca, cb, how = _correspond(sa_, sb_, tol)

@@ -1488,15 +1488,16 @@ def _edge_limits(model: ViewModel, params) -> tuple:
 
 
 def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings: dict | None = None,
-                 follow_min_dn: float | None = None) -> ViewCenterline:
+                 follow_min_dn: float | None = None, bridge_gaps: bool = True) -> ViewCenterline:
     """Coarse path, fine profiles, spline, tip: the sub-pixel centerline of one view.
 
     ``params`` is a :class:`recon.fast.FastParams`; ``roi`` (coarse pixels)
     narrows the search for the robot (see :func:`coarse_path`). Stage times (ms) are
     added to ``timings`` when given (``coarse``, ``profiles``, ``fit``, ``follow``,
-    ``tip``). ``follow_min_dn`` (gray levels) lowers ``params.edge_min_dn`` for
-    following the tube beyond the fitted profiles only (a second try, when the
-    other view's tip says the tube goes on).
+    ``tip``). Second tries, when the other view's tip disagrees: ``follow_min_dn``
+    (gray levels) lowers ``params.edge_min_dn`` for following the tube beyond the
+    fitted profiles only, and ``bridge_gaps=False`` stops following at the first
+    gap (what lies beyond one may be backdrop that passes for the tube).
 
     Raises
     ------
@@ -1529,12 +1530,11 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
     lap("fit")
     # The coarse path can stop short of the tip (a tube only a coarse pixel or two wide can drop out of the
     # coarse mask): follow the tube's edges at full resolution beyond the last accepted centre.
-    gap_px = 2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0)
+    gap_px = 2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0) if bridge_gaps else 0.0
     if follow_min_dn is not None:
-        # More sensitive, but without bridging gaps: at this threshold a stretch of backdrop texture beyond a
-        # gap passes for a tube often enough (seen: two hits 50 px on, 20 px off the tube).
+        # More sensitive; callers then bridge no gaps: at this threshold a stretch of backdrop texture beyond
+        # a gap passes for a tube often enough (seen: two hits 50 px on, 20 px off the tube).
         _, _, thr, thr_px, *_ = _edge_limits(model, replace(params, edge_min_dn=min(follow_min_dn, params.edge_min_dn)))
-        gap_px = 0.0
     follow = dict(half=int(np.ceil(rmax * 1.45 + 4)), threshold=thr, wmin=wmin, wmax=wmax, step=params.profile_step_px,
                   tolerance=model.inner_radius_px, max_gap_px=gap_px,
                   nav=nav, threshold1=thr_px, strong=strong, energy=bool(getattr(params, "follow_energy", False)), visited=c[good])
