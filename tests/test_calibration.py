@@ -422,3 +422,47 @@ def test_a_stereo_pair_seen_by_one_camera_is_dropped_with_its_name(folder, captu
     for name in ("side", "top"):
         d_mm, d_deg = pose_difference(rig[name].T_cam_world, capture.truth[name].T_cam_world)
         assert d_mm < 0.2 and d_deg < 0.05, (name, d_mm, d_deg)
+
+
+def _glare(img: np.ndarray, center, radius_px: float) -> np.ndarray:
+    """A saturated highlight (a lamp's reflection on the board) blended over ``img``."""
+    yy, xx = np.mgrid[: img.shape[0], : img.shape[1]]
+    g = np.exp(-((xx - center[0]) ** 2 + (yy - center[1]) ** 2) / (2 * radius_px**2))
+    return np.clip(img.astype(np.float32) + 255.0 * g, 0, 255).astype(np.uint8)
+
+
+def test_motion_blur_glare_low_resolution_and_few_images(capture, side_dets, capsys):
+    """The faults of real photographs: each view still gives the board or a named reason, and the intrinsics
+    stay those of the clean views (issue 14: calibration that holds on real photos)."""
+    board = capture.board
+    views = capture.images().views["side"]
+    clean = calibrate_camera(side_dets, board, "side")
+    kernel = np.zeros((1, 7), np.float32)
+    kernel[0, :] = 1 / 7  # 7 px of horizontal motion during the exposure
+    faulty = list(side_dets)
+    for i in (1, 4):
+        faulty[i] = detect_board(cv2.filter2D(views[i][1], -1, kernel), board, name=views[i][0])
+    for i in (2, 5):
+        c = side_dets[i].corners.mean(axis=0)
+        faulty[i] = detect_board(_glare(views[i][1], c, 40.0), board, name=views[i][0])
+    for d in faulty[1:6]:
+        assert d.usable or d.reason, d.name  # a board, or why not
+    cal = calibrate_camera(faulty, board, "side")
+    d_f = abs(cal.K[0, 0] / clean.K[0, 0] - 1)
+    assert d_f < 0.002 and np.abs(cal.K[:2, 2] - clean.K[:2, 2]).max() < 1.0
+    # low resolution: every view at half size (the board's squares ~10 px); K halves with it
+    small = [detect_board(cv2.resize(im, (512, 384), interpolation=cv2.INTER_AREA), board, name=n) for n, im in views]
+    assert sum(d.usable for d in small) >= 10
+    low = calibrate_camera(small, board, "side")
+    d_low = abs(2 * (low.K[0, 0]) / clean.K[0, 0] - 1)
+    assert d_low < 0.01
+    # few images: the least a camera needs, and one less
+    few = calibrate_camera(side_dets[:5], board, "side")
+    assert abs(few.K[0, 0] / clean.K[0, 0] - 1) < 0.01
+    with pytest.raises(ValueError, match=r"^side: only 4 usable views"):
+        calibrate_camera(side_dets[:4], board, "side")
+    with capsys.disabled():
+        print(f"\ncalibration faults (side, fx {clean.K[0, 0]:.2f} px clean): motion blur + glare "
+              f"{sum(d.usable for d in faulty)}/{len(faulty)} views usable, fx off by {100 * d_f:.3f} %; "
+              f"half resolution {sum(d.usable for d in small)}/{len(small)} usable, 2 fx off by {100 * d_low:.3f} %; "
+              f"5 views fx off by {100 * abs(few.K[0, 0] / clean.K[0, 0] - 1):.3f} %")
