@@ -715,7 +715,7 @@ class FastReconstructor:
             if _short_view(model, views, sa_, sb_, params) == n:
                 sa_, sb_ = self._again(frames, views, (sa_, sb_), b if n == a else a, bridge_gaps=False)
             detail["retry"] = 1e3 * (time.perf_counter() - lap)
-        _check_tip_agreement(model, views, sa_, sb_, params)
+            _check_tip_agreement(model, views, sa_, sb_, params)
         s_a, s_b, da, db, ca, cb, how = _correspond(sa_, sb_, tol)
         X, gap = triangulate_rays(model.epipolar.center_a, da, model.epipolar.center_b, db)
         keep = gap < params.max_ray_gap_mm
