@@ -642,6 +642,41 @@ def _check_tip_agreement(model: FastModel, views: dict, sa_: _ViewSamples, sb_: 
                          f"{b if n == a else a}'s tip puts it (one view lost the tube before its tip, or followed something else)")
 
 
+@dataclass(frozen=True)
+class _Matched:
+    """The views' samples matched through the epipolar planes (kept where the rays meet) and the smoothing
+    spline through their triangulated points: parameters ``s_a, s_b`` (px), confidences ``ca, cb``,
+    ``q = s_a + s_b``, ray gaps (mm), the correspondence used, the spline X(q) (mm) and its chord (mm)."""
+
+    s_a: np.ndarray
+    s_b: np.ndarray
+    ca: np.ndarray
+    cb: np.ndarray
+    q: np.ndarray
+    gap: np.ndarray
+    how: str
+    spline: object
+    chord: float
+
+
+def _matched_curve(model: FastModel, params: FastParams, sa_: _ViewSamples, sb_: _ViewSamples, tol: float) -> _Matched:
+    """Correspond, triangulate, drop rays that miss each other, fit the weighted spline (:class:`_Matched`)."""
+    s_a, s_b, da, db, ca, cb, how = _correspond(sa_, sb_, tol)
+    X, gap = triangulate_rays(model.epipolar.center_a, da, model.epipolar.center_b, db)
+    keep = gap < params.max_ray_gap_mm
+    if keep.sum() < 6:
+        raise FrameError(f"the two views disagree: matched rays pass {np.median(gap):.2f} mm apart (more than {params.max_ray_gap_mm:g})")
+    X, s_a, s_b, ca, cb, gap = X[keep], s_a[keep], s_b[keep], ca[keep], cb[keep], gap[keep]
+    q = s_a + s_b
+    order = np.argsort(q, kind="stable")
+    X, q, s_a, s_b, ca, cb = X[order], q[order], s_a[order], s_b[order], ca[order], cb[order]
+    w = np.clip(np.minimum(ca, cb), 0.03, 1.0) ** 2
+    chord = float(np.sum(np.linalg.norm(np.diff(X[:: max(1, len(X) // 40)], axis=0), axis=1)))
+    q_per_mm = (q[-1] - q[0]) / max(chord, 1e-6)
+    spl = _fit_weighted(q, X, params.knot_mm * q_per_mm, w)
+    return _Matched(s_a, s_b, ca, cb, q, gap, how, spl, chord)
+
+
 class FastReconstructor:
     """The per-frame callable of the fast method (keeps the previous frame for the jump check)."""
 
@@ -688,6 +723,22 @@ class FastReconstructor:
         smp = _view_samples(model, name, views[name], params.sample_step_px)
         return (smp, samples[1]) if name == model.pair[0] else (samples[0], smp)
 
+    def _agreeing(self, frames: dict, views: dict, sa_: _ViewSamples, sb_: _ViewSamples, n: str) -> tuple:
+        """The samples of a pair whose tips disagree (view ``n`` ends short), after second tries; raises when
+        they still disagree.
+
+        One view lost a faint stretch of tube before its tip: it is followed once more, more sensitively.
+        If it still ends short, the other view may have bridged a gap onto backdrop beyond the tip: that
+        one is followed again without bridging. The tip check (and the self-check after it) judges.
+        """
+        model, params = self.model, self.params
+        a, b = model.pair
+        sa_, sb_ = self._again(frames, views, (sa_, sb_), n, follow_min_dn=params.retry_min_dn, bridge_gaps=False)
+        if _short_view(model, views, sa_, sb_, params) == n:
+            sa_, sb_ = self._again(frames, views, (sa_, sb_), b if n == a else a, bridge_gaps=False)
+        _check_tip_agreement(model, views, sa_, sb_, params)
+        return sa_, sb_
+
     def __call__(self, frames: dict) -> FastReconstruction:
         model, params = self.model, self.params
         timings = {}
@@ -706,29 +757,12 @@ class FastReconstructor:
         lap = time.perf_counter()
         detail["rays"] = 1e3 * (lap - t)
         tol = 2.0 / float(rig[a].K[0, 0])  # ~2 px of epipolar angle
-        n = _short_view(model, views, sa_, sb_, params)
-        if n is not None:
-            # One view lost a faint stretch of tube before its tip: follow it once more, more sensitively.
-            # If it still ends short, the other view may have bridged a gap onto backdrop beyond the tip:
-            # follow that one again without bridging. The tip check (and the self-check after it) judges.
-            sa_, sb_ = self._again(frames, views, (sa_, sb_), n, follow_min_dn=params.retry_min_dn, bridge_gaps=False)
-            if _short_view(model, views, sa_, sb_, params) == n:
-                sa_, sb_ = self._again(frames, views, (sa_, sb_), b if n == a else a, bridge_gaps=False)
+        n_short = _short_view(model, views, sa_, sb_, params)
+        if n_short is not None:
+            sa_, sb_ = self._agreeing(frames, views, sa_, sb_, n_short)
             detail["retry"] = 1e3 * (time.perf_counter() - lap)
-            _check_tip_agreement(model, views, sa_, sb_, params)
-        s_a, s_b, da, db, ca, cb, how = _correspond(sa_, sb_, tol)
-        X, gap = triangulate_rays(model.epipolar.center_a, da, model.epipolar.center_b, db)
-        keep = gap < params.max_ray_gap_mm
-        if keep.sum() < 6:
-            raise FrameError(f"the two views disagree: matched rays pass {np.median(gap):.2f} mm apart (more than {params.max_ray_gap_mm:g})")
-        X, s_a, s_b, ca, cb, gap = X[keep], s_a[keep], s_b[keep], ca[keep], cb[keep], gap[keep]
-        q = s_a + s_b
-        order = np.argsort(q, kind="stable")
-        X, q, s_a, s_b, ca, cb = X[order], q[order], s_a[order], s_b[order], ca[order], cb[order]
-        w = np.clip(np.minimum(ca, cb), 0.03, 1.0) ** 2
-        chord = float(np.sum(np.linalg.norm(np.diff(X[:: max(1, len(X) // 40)], axis=0), axis=1)))
-        q_per_mm = (q[-1] - q[0]) / max(chord, 1e-6)
-        spl = _fit_weighted(q, X, params.knot_mm * q_per_mm, w)
+        m = _matched_curve(model, params, sa_, sb_, tol)
+        s_a, s_b, ca, cb, q, spl, chord = m.s_a, m.s_b, m.ca, m.cb, m.q, m.spline, m.chord
         now = time.perf_counter()
         detail["match_fit"] = 1e3 * (now - lap)
         lap = now
@@ -768,10 +802,10 @@ class FastReconstructor:
             n_voxels=0,
             jump_flag=reason is not None,
             jump_reason=reason,
-            ray_gap_mm=float(np.median(gap)),
-            correspondence=how,
+            ray_gap_mm=float(np.median(m.gap)),
+            correspondence=m.how,
             timings_ms=timings,
-            suspect_reason=_ORDERED_REASON if how == "ordered-dp" else None,
+            suspect_reason=_ORDERED_REASON if m.how == "ordered-dp" else None,
         )
 
 
