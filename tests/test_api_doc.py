@@ -1,7 +1,6 @@
 """docs/api.md runs as written (issue 14, item 6), and the packages export what it uses."""
 from __future__ import annotations
 
-import os
 import re
 from pathlib import Path
 
