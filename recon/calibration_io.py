@@ -63,6 +63,7 @@ __all__ = [
     "load_kalibr_camchain",
     "ros_distortion",
     "ros_stereo_rectification",
+    "rig_rectification",
     "export_rig_ros",
     "save_ros_camera_info",
     "load_ros_camera_info",
@@ -434,11 +435,21 @@ def save_ros_camera_info(path, camera: Camera, camera_name: str | None = None, R
     Path(path).write_text(yaml.safe_dump(doc, sort_keys=False))
 
 
+def _side_top(rig: RigCalibration) -> np.ndarray:
+    """The rig's ``T_side_top`` (4x4, mm) from its two cameras' poses."""
+    return rig["side"].T_cam_world @ invert_transform(rig["top"].T_cam_world)
+
+
+def rig_rectification(rig: RigCalibration) -> dict:
+    """:func:`ros_stereo_rectification` of a rig's top and side cameras."""
+    return ros_stereo_rectification(rig["top"], rig["side"], _side_top(rig))
+
+
 def export_rig_ros(rig: RigCalibration, stem) -> list:
     """``<stem>_ros_top.yaml`` and ``<stem>_ros_side.yaml``: the rig as a rectified ROS stereo pair; returns the paths."""
     stem = Path(stem)
     side, top = rig["side"], rig["top"]
-    rect = ros_stereo_rectification(top, side, side.T_cam_world @ invert_transform(top.T_cam_world))
+    rect = rig_rectification(rig)
     paths = []
     for name, cam in (("top", top), ("side", side)):
         path = stem.with_name(f"{stem.name}_ros_{name}.yaml")
@@ -564,7 +575,7 @@ def export_rig_opencv(rig: RigCalibration, stem) -> list:
     ``<stem>_side.yaml`` / ``<stem>_top.yaml`` (intrinsics and ``T_cam_world``); returns the paths."""
     stem = Path(stem)
     side, top = rig["side"], rig["top"]
-    T_side_top = side.T_cam_world @ invert_transform(top.T_cam_world)
+    T_side_top = _side_top(rig)
     paths = [stem.with_name(stem.name + "_stereo.yaml"), stem.with_name(stem.name + "_side.yaml"), stem.with_name(stem.name + "_top.yaml")]
     save_opencv_stereo(paths[0], side, top, T_side_top, top.T_cam_world)
     save_opencv_camera(paths[1], side)

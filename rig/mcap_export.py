@@ -7,7 +7,7 @@ Per frame of the run, at the frame's time ``t_s``:
 * ``/<camera>/image/compressed`` (``sensor_msgs/msg/CompressedImage``, PNG)
   and ``/<camera>/camera_info`` (``sensor_msgs/msg/CameraInfo``: plumb_bob or
   rational_polynomial, with R and P of the rectified stereo pair, top = left, as
-  ``ctr-bench calibrate`` writes them: :func:`recon.calibration_io.ros_stereo_rectification`)
+  ``ctr-bench calibrate`` writes them: :func:`recon.calibration_io.rig_rectification`)
   for each camera of the session;
 * ``/ctr/backbone`` (``nav_msgs/msg/Path``): the backbone, base first,
   every pose oriented along the curve's tangent (x axis);
@@ -114,11 +114,10 @@ def _base_frame(rig) -> np.ndarray:
 
 def _rectification(rig) -> dict:
     """Each camera's (R, P) of the rectified top/side pair; R = I, P = [K | 0] for other rigs."""
-    from recon.calibration_io import ros_stereo_rectification
+    from recon.calibration_io import rig_rectification
 
     if set(rig.names) == {"side", "top"}:
-        side, top = rig["side"], rig["top"]
-        return ros_stereo_rectification(top, side, side.T_cam_world @ top.T_world_cam)
+        return rig_rectification(rig)
     return {n: (np.eye(3), np.hstack([rig[n].K, np.zeros((3, 1))])) for n in rig.names}
 
 
