@@ -12,7 +12,6 @@ import csv
 import io
 import json
 import os
-from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -21,14 +20,13 @@ import numpy as np
 
 from recon.rigcal import RigCalibration, load_rig_calibration, save_rig_calibration
 
-__all__ = ["SessionWriter", "Session", "SessionError", "FORMAT", "VERSION", "read_image"]
+from .session_checks import (FrameRecord, SessionError, TruthError, check_cameras, check_meta, check_truth, frame_columns,
+                             load_truth, parse_frames_csv, read_text, tube_radii_mm)
+
+__all__ = ["SessionWriter", "Session", "SessionError", "TruthError", "FrameRecord", "FORMAT", "VERSION", "read_image"]
 
 FORMAT = "ctr-bench-session"
 VERSION = 1
-
-
-class SessionError(ValueError):
-    """A session directory or file that cannot be read; the message names the path."""
 
 
 def _fsync_dir(path: Path) -> None:
@@ -64,9 +62,14 @@ def _png_bytes(image: np.ndarray) -> bytes:
 def read_image(path) -> np.ndarray:
     """Read a PNG as mono (H, W) or RGB (H, W, 3) uint8; a clear error names an unreadable file."""
     path = Path(path)
-    data = np.fromfile(path, dtype=np.uint8) if path.exists() else None
-    if data is None:
-        raise SessionError(f"{path}: image file missing")
+    try:
+        data = np.fromfile(path, dtype=np.uint8)
+    except FileNotFoundError:
+        raise SessionError(f"{path}: image file missing") from None
+    except IsADirectoryError:
+        raise SessionError(f"{path}: is a directory, not an image file") from None
+    except OSError as exc:
+        raise SessionError(f"{path}: cannot read the image ({exc.strerror or type(exc).__name__})") from None
     img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if img is None:
         raise SessionError(f"{path}: unreadable image (not a valid PNG)")
@@ -75,13 +78,6 @@ def read_image(path) -> np.ndarray:
     if img.ndim == 3:
         img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB)
     return img
-
-
-def _joint_columns(n_tubes: int) -> list:
-    cols = []
-    for i in range(n_tubes):
-        cols += [f"extension_{i}_mm", f"rotation_{i}_deg"]
-    return cols
 
 
 class SessionWriter:
@@ -125,7 +121,7 @@ class SessionWriter:
         }
         self._write_meta()
         self._csv_path = self.dir / "frames.csv"
-        self._columns = ["frame", "t_s"] + [f"t_{c}_s" for c in self.cameras] + ["skew_ms"] + _joint_columns(self.n_tubes)
+        self._columns = frame_columns(self.cameras, self.n_tubes)
         with open(self._csv_path, "w", newline="") as fh:
             csv.writer(fh).writerow(self._columns)
         self._csv = open(self._csv_path, "a", newline="")
@@ -196,71 +192,64 @@ class SessionWriter:
         self.close()
 
 
-@dataclass(frozen=True)
-class FrameRecord:
-    """One row of ``frames.csv``."""
-
-    index: int
-    t_s: float
-    skew_ms: float
-    extension_mm: tuple | None
-    rotation_deg: tuple | None
-
-
 class Session:
-    """A session directory opened for reading.
+    """A session directory opened for reading (docs/session-format.md).
 
-    Raises :class:`SessionError` naming the file when something is missing or malformed.
+    Everything but the images and the ground truth is read and checked when the
+    session is opened: ``session.json``, ``rig.json``, ``frames.csv``, and that the
+    cameras agree between them and with the ``frames/`` and ``background/`` folders.
+
+    Parameters
+    ----------
+    directory : path
+    allow_empty : bool
+        Accept a session without any committed frame (e.g. background frames only);
+        by default that is refused, as nothing could be reconstructed from it.
+
+    Attributes
+    ----------
+    meta : dict
+        ``session.json``.
+    rig : RigCalibration
+    cameras : list of str
+    n_tubes : int
+    frames : list of FrameRecord
+        The committed frames, in ``frames.csv`` order.
+    notes : list of str
+        One line per thing forgiven while reading (a last ``frames.csv`` row cut short by a crash).
+
+    Raises
+    ------
+    SessionError
+        One line naming the file (and its key or line) and what is wrong.
     """
 
-    def __init__(self, directory):
+    def __init__(self, directory, allow_empty: bool = False):
         self.dir = Path(directory)
-        meta_path = self.dir / "session.json"
         if not self.dir.is_dir():
             raise SessionError(f"{self.dir}: not a directory")
-        try:
-            self.meta = json.loads(meta_path.read_text())
-        except FileNotFoundError:
-            raise SessionError(f"{self.dir}: no session.json (not a ctr-bench session directory)") from None
-        except json.JSONDecodeError as exc:
-            raise SessionError(f"{meta_path}: not valid JSON ({exc.msg})") from None
-        if self.meta.get("format") != FORMAT:
-            raise SessionError(f"{meta_path}: format is {self.meta.get('format')!r}, expected {FORMAT!r}")
-        if self.meta.get("version") != VERSION:
-            raise SessionError(f"{meta_path}: version {self.meta.get('version')!r} is not supported (this ctr-bench reads {VERSION})")
-        self.rig: RigCalibration = load_rig_calibration(self.dir / "rig.json")
-        self.cameras = list(self.meta.get("cameras", self.rig.names))
-        self.n_tubes = int(self.meta.get("n_tubes", 0))
-        self.frames = self._read_frames()
+        meta_path = self.dir / "session.json"
+        self.meta = _read_meta(meta_path)
+        self.rig: RigCalibration = _read_rig(self.dir / "rig.json")
+        self.cameras = check_cameras(self.meta.get("cameras", self.rig.names), meta_path, self.rig.names, self.dir / "rig.json")
+        self.n_tubes = self.meta.get("n_tubes", 0)
+        self.frames, self.notes = self._read_frames()
+        if not self.frames and not allow_empty:
+            cut = f" ({self.notes[0]})" if self.notes else ""
+            raise SessionError(f"{self.dir / 'frames.csv'}: no committed frames, nothing to reconstruct{cut}")
 
-    def _read_frames(self) -> list:
+    def _read_frames(self) -> tuple:
         path = self.dir / "frames.csv"
-        if not path.exists():
-            raise SessionError(f"{path}: missing")
-        records = []
-        with open(path, newline="") as fh:
-            reader = csv.DictReader(fh)
-            for line, row in enumerate(reader, start=2):
-                if None in row or any(v is None for v in row.values()):
-                    break  # a row cut short by a crash: the frame never committed
-                try:
-                    ext = rot = None
-                    if self.n_tubes and row.get("extension_0_mm"):
-                        ext = tuple(float(row[f"extension_{i}_mm"]) for i in range(self.n_tubes))
-                        rot = tuple(float(row[f"rotation_{i}_deg"]) for i in range(self.n_tubes))
-                    records.append(FrameRecord(int(row["frame"]), float(row["t_s"]), float(row.get("skew_ms") or 0.0), ext, rot))
-                except (KeyError, ValueError) as exc:
-                    raise SessionError(f"{path}:{line}: malformed row ({exc})") from None
-        return records
+        try:
+            text = read_text(path)
+        except FileNotFoundError:
+            raise SessionError(f"{path}: missing") from None
+        return parse_frames_csv(text, path, self.cameras, self.n_tubes)
 
     @property
     def robot_tube_radii_mm(self):
         """(outermost, innermost) tube radius (mm) of the robot in session.json (one tube: both the same), or None without one."""
-        tubes = (self.meta.get("robot") or {}).get("tubes") or []
-        try:
-            radii = [float(t["outer_diameter_mm"]) / 2 for t in tubes]
-        except (KeyError, TypeError, ValueError):
-            raise SessionError(f"{self.dir / 'session.json'}: robot.tubes: each tube needs a numeric outer_diameter_mm") from None
+        radii = tube_radii_mm(self.meta.get("robot"), self.dir / "session.json")
         return (radii[0], radii[-1]) if radii else None
 
     @property
@@ -294,7 +283,7 @@ class Session:
         return self.dir / "frames" / camera / f"{index:06d}.png"
 
     def frame_images(self, index: int, mono: bool = True) -> dict:
-        """Images of frame ``index`` by camera (mono unless ``mono=False``)."""
+        """Images of frame ``index`` by camera (mono unless ``mono=False``); an unreadable one is a SessionError naming it."""
         out = {}
         for cam in self.cameras:
             img = read_image(self.frame_path(index, cam))
@@ -303,13 +292,65 @@ class Session:
             out[cam] = img
         return out
 
+    def truth_path(self, index: int) -> Path:
+        return self.dir / "truth" / f"{index:06d}.npz"
+
     def truth(self, index: int) -> dict | None:
-        """Ground truth arrays of frame ``index`` (None when the session has none)."""
-        path = self.dir / "truth" / f"{index:06d}.npz"
-        if not path.exists():
-            return None
+        """Ground truth arrays of frame ``index``, checked (docs/session-format.md); None when the session has none.
+
+        A frame's truth concerns that frame only: a caller scoring several frames
+        catches :class:`TruthError` per frame, records its one-line message (e.g.
+        ``rec["note"] = f"not scored: {exc}"``) and goes on::
+
+            try:
+                truth = session.truth(i)
+            except TruthError as exc:
+                truth, note = None, str(exc)
+
+        Raises
+        ------
+        TruthError
+            Naming the npz file: missing while ``session.json`` says the session has
+            ground truth, not a readable npz archive, no ``backbone_world_mm``, an array
+            of the wrong shape or dtype, NaN or inf where the format has finite values.
+        """
+        path = self.truth_path(index)
         try:
-            with np.load(path) as z:
-                return {k: z[k] for k in z.files}
-        except (OSError, ValueError) as exc:
-            raise SessionError(f"{path}: unreadable ground truth ({exc})") from None
+            arrays = load_truth(path)
+        except FileNotFoundError:
+            if self.has_truth:
+                raise TruthError(f"{path}: missing (session.json says the session has ground truth)") from None
+            return None
+        sizes = {c: (self.rig[c].height, self.rig[c].width) for c in self.cameras}
+        return check_truth(arrays, path, sizes, self.n_tubes)
+
+
+def _read_meta(path: Path) -> dict:
+    """``session.json``, parsed and checked (:func:`rig.session_checks.check_meta`)."""
+    try:
+        text = read_text(path)
+    except FileNotFoundError:
+        raise SessionError(f"{path.parent}: no session.json (not a ctr-bench session directory)") from None
+    try:
+        meta = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise SessionError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except RecursionError:
+        raise SessionError(f"{path}: not valid JSON (nested too deeply)") from None
+    check_meta(meta, path, FORMAT, VERSION)
+    return meta
+
+
+def _read_rig(path: Path) -> RigCalibration:
+    """The session's rig calibration; whatever is wrong with it is a SessionError naming ``path``."""
+    try:
+        read_text(path)  # binary content: say so, rather than the codec's message
+        return load_rig_calibration(path)
+    except FileNotFoundError:
+        raise SessionError(f"{path}: rig calibration file not found") from None
+    except SessionError:
+        raise
+    except (ValueError, TypeError, KeyError, AttributeError) as exc:
+        # recon.rigcal's messages name the file; anything else it lets through is made to.
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise SessionError(msg if msg.startswith(str(path)) else f"{path}: malformed rig calibration ({msg})") from None
