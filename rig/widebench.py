@@ -21,7 +21,10 @@ at that point's depth (mm). A frame is
 
 Error statistics are over the reconstructed frames (ok and flagged), whatever
 their status. Every frame's row goes to ``frames.csv`` in the output directory
-as it is scored, and the aggregates to ``summary.json``.
+as it is scored, and the aggregates to ``summary.json``. A frame whose ground
+truth cannot be used (its truth file missing, unreadable, of the wrong shape or
+not finite) keeps its row, unscored, with a ``note`` that names the file; the
+other frames are scored as usual.
 """
 from __future__ import annotations
 
@@ -53,7 +56,7 @@ JSON_KEYS = ("frames", "ok", "flagged", "failed", "silent_wrong", "good_flagged"
 _CSV_FIELDS = ("scene", "method", "frame", "status", "reason", *CLASS_KEYS, "footprint_mm", "mean_error_mm",
                "max_error_mm", "tip_error_mm", "mean_error_px", "max_error_px", "tip_error_px", "voxel_mm",
                "mean_error_voxels", "ms",
-               "silent_wrong", "selfcheck_reason")
+               "silent_wrong", "selfcheck_reason", "note")
 
 
 # ----------------------------------------------------------------------------- scenes
@@ -88,7 +91,11 @@ def thinnest_tube_px(session) -> float:
     from recon.metrics import seen_by_all
 
     tubes = (session.meta.get("robot") or {}).get("tubes") or []
-    truth = session.truth(session.frames[0].index) if session.frames else None
+    truth = None
+    for fr in session.frames if tubes else ():  # frame 0's truth, or the first usable one when it is corrupt
+        truth, _ = _truth_or_note(session, fr.index)
+        if truth is not None:
+            break
     if not tubes or truth is None:
         return float("nan")
     od_mm = min(float(t["outer_diameter_mm"]) for t in tubes)
@@ -117,17 +124,41 @@ def _selfcheck_reason(rec: dict):
     return sc.get("reason") if isinstance(sc, dict) else None
 
 
+def _truth_or_note(session, index: int) -> tuple:
+    """``(truth, None)``, or ``(None, "not scored: <why>")`` for a frame whose ground truth is unusable or absent.
+
+    A :class:`rig.session.TruthError` (the truth file missing in a ground-truth session,
+    unreadable, of the wrong shape, not finite) concerns that frame only: its one-line
+    message, which names the file, becomes the frame's note and the other frames are scored.
+    """
+    from rig.session import TruthError
+
+    try:
+        truth = session.truth(index)
+    except TruthError as exc:
+        return None, f"not scored: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+    if truth is None:
+        where = getattr(session, "dir", None)
+        return None, f"not scored: {where}: the session has no ground truth" if where else "not scored: no ground truth"
+    return truth, None
+
+
 def score_run(summary: dict, session, scene: str, method: str, classes: dict) -> list:
-    """One row per frame of a reconstruct summary, with errors in pixel footprints."""
+    """One row per frame of a reconstruct summary, with errors in pixel footprints.
+
+    A frame whose ground truth cannot be used stays a row, unscored (its errors None),
+    with ``note`` saying why and naming the truth file (:func:`_truth_or_note`);
+    otherwise ``note`` is the reconstruct summary's own note for the frame, if any.
+    """
     rows = []
     for rec in summary["per_frame"]:
-        truth = session.truth(rec["frame"])
+        truth, note = _truth_or_note(session, rec["frame"])
         px = frame_footprint_mm(session.rig, truth["backbone_world_mm"]) if truth is not None else float("nan")
         row = {"scene": scene, "method": method, "frame": rec["frame"], "status": rec["status"],
                "reason": rec.get("reason"), **{k: classes.get(k, "") for k in CLASS_KEYS}, "footprint_mm": px,
-               "ms": rec.get("ms"), "selfcheck_reason": _selfcheck_reason(rec)}
+               "ms": rec.get("ms"), "selfcheck_reason": _selfcheck_reason(rec), "note": note or rec.get("note")}
         for key in ("mean_error_mm", "max_error_mm", "tip_error_mm"):
-            v = rec.get(key)
+            v = rec.get(key) if truth is not None else None  # no errors against a truth that is not there
             row[key] = v
             row[key.replace("_mm", "_px")] = v / px if v is not None and np.isfinite(px) else None
         voxel = rec.get("voxel_size_mm")

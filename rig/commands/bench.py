@@ -18,7 +18,9 @@ interruptions by other processes on a shared machine; the table gives the
 median and 95th percentile over frames. Errors are from the first pass
 (:func:`recon.metrics.backbone_errors` against the twin's ground truth):
 mean = mean over frames of the per-frame mean error, max = largest per-frame
-maximum, tip = median of the per-frame tip errors. Peak memory is the
+maximum, tip = median of the per-frame tip errors; a frame whose ground truth
+cannot be used is left out of them and listed under the table (``score_notes``
+in ``--json``, naming the truth file). Peak memory is the
 tracemalloc peak (Python and NumPy heap) of one more reconstruction of the
 first frame, made after the timed passes (for the fast method with its NumPy
 code: numba's allocations are invisible to tracemalloc); model memory is what
@@ -132,19 +134,31 @@ def cached_session(scene, factor: float, cache_dir: Path, quiet: bool = True) ->
 
 
 def load_session(path: Path) -> dict:
-    """Background stacks, frame images and ground-truth backbones of a session, in memory."""
+    """Background stacks, frame images and ground-truth backbones of a session, in memory.
+
+    A frame whose ground truth cannot be used (:class:`rig.session.TruthError`: its
+    file missing, unreadable, of the wrong shape or not finite) is kept, unscored: its
+    truth is None and ``truth_notes`` holds ``"not scored: <message naming the file>"``
+    at its position (None for the other frames).
+    """
     from rig.reconstruct import load_background_frames
-    from rig.session import Session
+    from rig.session import Session, TruthError
 
     s = Session(path)
-    frames, truths = [], []
+    frames, truths, notes = [], [], []
     for fr in s.frames:
         frames.append(s.frame_images(fr.index))
-        t = s.truth(fr.index)
+        try:
+            t = s.truth(fr.index)
+        except TruthError as exc:
+            t = None
+            notes.append(f"not scored: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}")
+        else:
+            notes.append(None)
         truths.append(None if t is None else t["backbone_world_mm"])
     cam0 = s.rig[s.cameras[0]]
     return {"session": s, "rig": s.rig, "backgrounds": load_background_frames(s), "frames": frames, "truths": truths,
-            "size": (cam0.width, cam0.height)}
+            "truth_notes": notes, "size": (cam0.width, cam0.height)}
 
 
 # ----------------------------------------------------------------------------- methods
@@ -232,6 +246,8 @@ def run_method(name: str, data: dict, params=None, repeats: int = 3, budget_s: f
         "tip_error_mm_median": float(np.median([e["tip_error_mm"] for e in scored])) if scored else None,
         "tip_error_mm_max": float(np.max([e["tip_error_mm"] for e in scored])) if scored else None,
         "failures": sorted({f for f in failures if f})[:5],
+        "scored_frames": len(scored),
+        "score_notes": [note for note in data.get("truth_notes") or () if note],
     }
     out.update(extras)
     if memory and ok.any():
@@ -379,12 +395,24 @@ def _run(args) -> int:
     rat = format_ratios(results)
     if rat:
         print("\n" + rat)
+    _print_score_notes(results)
     if "icp-epipolar" in results and "skipped" not in results["icp-epipolar"]:
         print("\nicp-epipolar runs with two compatibility shims (NumPy 2 int() of 1-element arrays, OpenCV 5 1-D points); see rig/peers.py.")
     if args.scaling:
         print()
         print(format_scaling(report["scaling"]))
+        _print_score_notes(report["scaling"])
     return 0
+
+
+def _print_score_notes(results: dict, file=None) -> None:
+    """The frames left unscored (their ground truth unusable), once each, under the table (on ``file``, stdout by default)."""
+    file = file or sys.stdout
+    notes = list(dict.fromkeys(n for r in results.values() for n in r.get("score_notes", ())))
+    if notes:
+        print(f"\n{len(notes)} frame(s) not scored (errors are over the other frames):", file=file)
+        for note in notes:
+            print(f"  {note}", file=file)
 
 
 def scaling(scene, methods, cache: Path, args) -> dict:
