@@ -5,9 +5,17 @@ interrupted run keeps what it finished:
 
 * ``frames/NNNNNN.csv``: the backbone of each frame, ``s_mm,x_mm,y_mm,z_mm,tx,ty,tz``, base first
   (:mod:`rig.backbone_csv`);
+* ``frames.jsonl``: the journal, one line per finished frame, appended and flushed
+  as it finishes (:mod:`rig.rundir`): what ``--resume`` continues from;
 * ``frames.csv``: one row per frame (time, status, reason, figures);
 * ``backbones.npz``: all backbones (``frame_NNNNNN`` arrays) and the frame indices;
-* ``summary.json``: method, parameters, per-frame results and aggregates.
+* ``summary.json``: method, parameters, per-frame results and aggregates, the
+  run id and the files it wrote; rewritten every few seconds and at the end.
+
+The output directory is the run's: one that holds an earlier run is refused
+unless ``existing="overwrite"`` (the earlier run's files are removed) or
+``"resume"`` (its finished frames are kept and skipped). :func:`read_run`
+reads a run back from what its summary lists, and no other file.
 
 Every reconstructed backbone is judged against its images by the
 method-independent self-check (:mod:`recon.selfcheck`, ``docs/selfcheck.md``):
@@ -17,7 +25,7 @@ can count silent wrong shapes (``ok`` frames with large errors).
 """
 from __future__ import annotations
 
-import json
+import dataclasses
 import os
 import time
 from pathlib import Path
@@ -29,48 +37,23 @@ from recon.methods import get_method
 from recon.metrics import backbone_errors
 from recon.params import params_to_dict
 from recon.selfcheck import SelfCheckParams, check_backbone, prepare_selfcheck
-from rig.backbone_csv import FrameTable, write_backbone_csv
+from rig.backbone_csv import FrameTable, read_backbone_csv, write_backbone_csv
 
+from .rundir import (BACKBONES, FRAMES_DIR, JOURNAL, SUMMARY, TABLE, Journal, WriteError, check_claim, journal_header,
+                     json_safe, json_text, read_backbones_npz, read_journal, read_summary, remove_files,
+                     write_backbones_npz, write_json_atomic, write_summary_json, writing)
 from .session import Session, SessionError
 
 __all__ = ["reconstruct_session", "write_json_atomic", "load_background_frames", "summarize", "format_table",
-           "selfcheck_tube_radii_mm", "selfcheck_record"]
+           "selfcheck_tube_radii_mm", "selfcheck_record", "read_run", "RunWriter"]
 
 #: Per-frame statuses: reconstructed and passed the self-check, reconstructed but the
 #: self-check doubts it, not reconstructed.
 STATUSES = ("ok", "suspect", "failed")
-
-
-def write_json_atomic(path: Path, data: dict) -> None:
-    """Write JSON to a temporary name and rename it: readers never see half a file.
-
-    JSON has no NaN or infinity: such values (an unknown figure, a limit
-    that is off) are written as null rather than aborting the write.
-    """
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(_json_safe(data), indent=2, allow_nan=False, default=_json_default) + "\n")
-    os.replace(tmp, path)
-
-
-def _json_safe(o):
-    """``o`` with every non-finite float (NumPy's too) replaced by None, containers copied."""
-    if isinstance(o, dict):
-        return {k: _json_safe(v) for k, v in o.items()}
-    if isinstance(o, np.ndarray):
-        return _json_safe(o.tolist())
-    if isinstance(o, (list, tuple)):
-        return [_json_safe(v) for v in o]
-    if isinstance(o, (float, np.floating)):
-        return float(o) if np.isfinite(o) else None
-    return o
-
-
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(f"not JSON serializable: {type(o).__name__}")
+#: summary.json is rewritten at most this often while a run goes (the journal has every frame at once)...
+SUMMARY_EVERY_S = 5.0
+#: ...and at most once per this many times its own writing time: its size grows with the run, its share of the time does not.
+SUMMARY_COST_FACTOR = 20.0
 
 
 def _finite(x):
@@ -174,12 +157,21 @@ def _error_aggregates(records: list) -> dict:
     }
 
 
-def summarize(records: list, method: str, params, session_dir, mm_px: float, selfcheck: SelfCheckParams | None = None) -> dict:
+def _as_dict(params):
+    """A parameter dataclass as a dict (a dict, e.g. read back from a journal, or None as it is)."""
+    return params_to_dict(params) if dataclasses.is_dataclass(params) else params
+
+
+def summarize(records: list, method: str, params, session_dir, mm_px: float, selfcheck: SelfCheckParams | None = None,
+              run_id: str | None = None, complete: bool = False, files: dict | None = None) -> dict:
     """Aggregate per-frame records into the summary.json document.
 
     Error and time aggregates are over the ``ok`` frames (as before the
     self-check existed); ``reconstructed`` holds the same over ``ok`` and
-    ``suspect`` frames together.
+    ``suspect`` frames together. ``params`` and ``selfcheck`` are dataclasses
+    or their dicts. With a ``run_id`` the summary also names the run, whether
+    it is ``complete`` and the ``files`` it wrote (default: the journal and the
+    table; :class:`RunWriter` adds ``backbones`` and ``backbones_sha1`` at the end).
     """
     ok = [r for r in records if r["status"] == "ok"]
     suspect = [r for r in records if r["status"] == "suspect"]
@@ -191,11 +183,16 @@ def summarize(records: list, method: str, params, session_dir, mm_px: float, sel
     voxel = np.array([max(r["voxel_size_mm"]) for r in ok if r.get("voxel_size_mm")], float)
     check_ms = np.array([r["selfcheck"]["ms"] for r in done if (r.get("selfcheck") or {}).get("ms") is not None], float)
 
+    run = {} if run_id is None else {
+        "run_id": run_id, "complete": bool(complete),
+        "files": files or {"journal": JOURNAL, "table": TABLE, "backbones": None, "backbones_sha1": None},
+    }
     return {
         "format": "ctr-bench-summary",
         "version": 1,
+        **run,
         "method": method,
-        "params": params_to_dict(params),
+        "params": _as_dict(params),
         "session": str(session_dir),
         "frames": len(records),
         "ok_frames": len(ok),
@@ -211,7 +208,7 @@ def summarize(records: list, method: str, params, session_dir, mm_px: float, sel
             "ms_per_pair_median": _finite(np.median(ms_done)) if ms_done.size else None,
             "ms_per_pair_p95": _finite(np.percentile(ms_done, 95)) if ms_done.size else None,
         },
-        "selfcheck": params_to_dict(selfcheck) if selfcheck is not None else None,
+        "selfcheck": _as_dict(selfcheck),
         "selfcheck_ms_median": _finite(np.median(check_ms)) if check_ms.size else None,
         "selfcheck_ms_max": _finite(np.max(check_ms)) if check_ms.size else None,
         "voxel_edge_mm_median": _finite(np.median(voxel)) if voxel.size else None,
@@ -263,8 +260,179 @@ def _score(rec: dict, session: Session, index: int, pts: np.ndarray) -> None:
         rec["note"] = f"not scored: {_one_line(exc)}"
 
 
+def _reconstruct_frame(session: Session, fr, reconstruct, check_model, radii_mm, selfcheck) -> tuple:
+    """One frame: its record and its backbone (None when it failed).
+
+    Whatever goes wrong with the frame is the frame's failure, with a one-line
+    reason: an exception, a backbone that is empty or not finite, a result that
+    cannot be described. The run goes on.
+    """
+    rec = {"frame": fr.index, "t_s": fr.t_s, "status": "ok", "reason": None}
+    try:
+        return rec, _reconstruct_and_judge(rec, session, fr.index, reconstruct, check_model, radii_mm, selfcheck)
+    except Exception as exc:  # noqa: BLE001 - per-frame isolation is the point
+        if os.environ.get("CTR_BENCH_DEBUG") and not isinstance(exc, (FrameError, SessionError)):
+            raise  # a developer asked to see where an unforeseen failure comes from
+        return {"frame": fr.index, "t_s": fr.t_s, "status": "failed", "reason": _one_line(exc)}, None
+
+
+def _reconstruct_and_judge(rec: dict, session: Session, index: int, reconstruct, check_model, radii_mm, selfcheck) -> np.ndarray:
+    """Reconstruct frame ``index`` into ``rec`` (time, self-check, description, score); returns its backbone."""
+    images = session.frame_images(index)
+    for cam, img in images.items():
+        c = session.rig[cam]
+        if img.shape != (c.height, c.width):
+            raise FrameError(f"image is {img.shape[1]}x{img.shape[0]} but the calibration is {c.width}x{c.height}", cam)
+    t0 = time.perf_counter()
+    result = reconstruct(images)
+    rec["ms"] = 1e3 * (time.perf_counter() - t0)
+    pts = _backbone_points(result)
+    # The fast method's temporal check: recorded, the frame stays as the self-check judges it.
+    rec["jump_flag"] = bool(getattr(result, "jump_flag", False))
+    rec["jump_reason"] = getattr(result, "jump_reason", None) if rec["jump_flag"] else None
+    if check_model is not None:
+        selfcheck_record(rec, check_model, images, pts, radii_mm, selfcheck)
+    own = getattr(result, "suspect_reason", None)
+    if own and rec["status"] == "ok":  # the method's own doubt (recorded when the check passed)
+        rec.update(status="suspect", reason=str(own))
+    _describe(rec, result, pts)
+    _score(rec, session, index, pts)
+    return pts
+
+
+def _backbone_points(result) -> np.ndarray:
+    """The (n, 3) backbone of a method's result; a ``FrameError`` when it has none or a point is not finite."""
+    pts = np.asarray(result.points_world_mm, float)
+    if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] == 0:
+        raise FrameError(f"the reconstruction has no valid backbone point (points of shape {pts.shape})")
+    bad = int(np.count_nonzero(~np.isfinite(pts).all(axis=1)))
+    if bad:
+        raise FrameError(f"the reconstruction has {bad} non-finite backbone points of {len(pts)}")
+    return pts
+
+
+class RunWriter:
+    """The files of one run as it goes (docs/outputs.md); the bookkeeping of :func:`reconstruct_session`.
+
+    Per finished frame: its backbone CSV, a journal line (flushed: the frame is
+    kept from then on, SIGKILL included) and a frames.csv row; summary.json
+    every :data:`SUMMARY_EVERY_S` at most (never more than 1/:data:`SUMMARY_COST_FACTOR`
+    of the time), so that the cost per frame does not grow with the run.
+    A write that fails raises :class:`rig.rundir.WriteError` naming the file.
+
+    Parameters
+    ----------
+    out : Path
+        The run directory (claimed: :func:`rig.rundir.check_claim`).
+    header : dict
+        The journal header (:func:`rig.rundir.journal_header`, with ``mm_per_px``).
+    kept : list of dict, optional
+        Records of the frames a resumed run keeps, and ``backbones`` their backbones.
+    """
+
+    def __init__(self, out, header: dict, kept=(), backbones=None):
+        self.out, self.header = Path(out), header
+        self.records, self.backbones = list(kept), dict(backbones or {})
+        self._lines = [json_text(r, indent=None) for r in self.records]  # each frame's JSON, encoded once
+        self.files = {"journal": JOURNAL, "table": TABLE, "backbones": None, "backbones_sha1": None}
+        with writing(self.out / FRAMES_DIR):
+            (self.out / FRAMES_DIR).mkdir(parents=True, exist_ok=True)
+        self._journal = Journal(self.out / JOURNAL, header, self.records)
+        with writing(self.out / TABLE):
+            self._table = FrameTable(self.out / TABLE, self.records)
+        self._next_summary = 0.0
+        self.write_summary()  # the directory names its run from the start
+
+    def add(self, rec: dict, pts: np.ndarray | None) -> None:
+        """Write a finished frame: its backbone (None: failed), journal line, table row; the summary when due."""
+        name = f"{FRAMES_DIR}/{rec['frame']:06d}.csv"
+        with writing(self.out / name):
+            if pts is not None:
+                rec.update(backbone_csv=name, backbone_sha1=write_backbone_csv(self.out / name, pts))
+                self.backbones[rec["frame"]] = pts
+            else:  # an earlier try of this frame, cut by a kill before its journal line, may have left one
+                (self.out / name).unlink(missing_ok=True)
+        self._lines.append(self._journal.add(rec))
+        with writing(self._table.path):
+            self._table.add(rec)
+        self.records.append(rec)
+        if time.monotonic() >= self._next_summary:
+            self.write_summary()
+
+    def summary(self, complete: bool = False) -> dict:
+        """The summary of the frames written so far."""
+        h = self.header
+        return summarize(self.records, h["method"], h["params"], h["session"], h["mm_per_px"], h["selfcheck"],
+                         run_id=h["run_id"], complete=complete, files=self.files)
+
+    def write_summary(self, complete: bool = False) -> dict:
+        """Write summary.json now; the next one while the run goes is due after a pause proportional to its cost."""
+        t0 = time.monotonic()
+        summary = self.summary(complete)
+        write_summary_json(self.out / SUMMARY, {k: v for k, v in summary.items() if k != "per_frame"}, self._lines)
+        cost = time.monotonic() - t0
+        self._next_summary = time.monotonic() + max(SUMMARY_EVERY_S, SUMMARY_COST_FACTOR * cost)
+        return summary
+
+    def finish(self) -> dict:
+        """Write backbones.npz and the complete summary; close. Returns the summary (unknown values as None)."""
+        self._journal.sync()
+        sha1 = write_backbones_npz(self.out / BACKBONES, self.backbones)
+        self.files.update(backbones=BACKBONES, backbones_sha1=sha1)  # listed once it is all there
+        summary = self.write_summary(complete=True)
+        self.close()
+        return json_safe(summary)
+
+    def abort(self, exc: BaseException) -> None:
+        """After an error or an interrupt: keep what is finished (journal synced, summary of it), best effort."""
+        if isinstance(exc, WriteError):
+            exc.note = f"the {len(self.records)} frames finished are kept in {self.out / JOURNAL} (--resume continues)"
+        try:
+            self.write_summary()
+        except OSError:
+            pass  # the disk that refused a frame may refuse the summary too; the journal has the frames
+        try:
+            self.close()
+        except OSError:
+            pass
+
+    def close(self) -> None:
+        self._journal.close()
+        self._table.close()
+
+
+def _kept_frames(out: Path, records: list) -> tuple:
+    """The records and backbones a resumed run keeps: every finished frame whose backbone file is as written.
+
+    A reconstructed frame whose CSV is missing or changed is done again.
+    """
+    kept, backbones = [], {}
+    for rec in {r["frame"]: r for r in records}.values():
+        if rec.get("backbone_csv"):
+            try:
+                backbones[rec["frame"]] = read_backbone_csv(out / rec["backbone_csv"], sha1=rec.get("backbone_sha1"))
+            except (OSError, ValueError):
+                continue
+        kept.append(rec)
+    return kept, backbones
+
+
+def _prepare_method(session: Session, m, backgrounds: dict, params):
+    """The method's per-frame callable; a set-up failure is a ``SessionError`` naming the background directory."""
+    try:
+        return m.prepare(session.rig, backgrounds, params)
+    except ValueError as exc:  # FrameError included
+        raise SessionError(_background_error(session, exc)) from None
+
+
+def _report_progress(progress, rec: dict, done: int, total: int) -> None:
+    if progress:
+        post = {"ms": f"{rec['ms']:.0f}"} if rec["status"] == "ok" else {rec["status"]: rec["frame"]}
+        progress("reconstruct", done, total, **post)
+
+
 def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None, progress=None, frames=None,
-                        selfcheck: SelfCheckParams | None = SelfCheckParams()) -> dict:
+                        selfcheck: SelfCheckParams | None = SelfCheckParams(), existing: str = "refuse") -> dict:
     """Reconstruct (and score, when the session has ground truth) every frame.
 
     Parameters
@@ -272,7 +440,7 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
     session_dir : path
         A session directory (docs/session-format.md).
     out_dir : path
-        Created if missing; CSVs, NPZ and summary.json go there.
+        Created if missing; CSVs, the journal, NPZ and summary.json go there.
     method : str
         A name from :data:`recon.methods.METHODS`.
     params : dataclass, optional
@@ -284,11 +452,16 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
         Judge every reconstructed backbone against its images
         (:mod:`recon.selfcheck`); a frame that fails is ``suspect``. None
         disables it (to measure what a run reports without it).
+    existing : {"refuse", "overwrite", "resume"}
+        When ``out_dir`` holds an earlier run: refuse (default), remove the
+        earlier run's files first, or continue it (its finished frames are kept
+        and not done again; method, parameters, self-check and session must be
+        the same).
 
     Returns
     -------
     dict
-        The summary (also written to ``out_dir/summary.json``).
+        The summary (also written to ``out_dir/summary.json``), unknown values as None.
 
     Raises
     ------
@@ -296,72 +469,109 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
         Set-up problems (missing files, too few background frames...), one line
         naming the file. Problems of single frames never raise: they are recorded
         as ``failed`` with their reason and the run goes on.
+    rig.rundir.RunDirError
+        ``out_dir`` holds a run this one may not overwrite or continue.
+    rig.rundir.WriteError
+        An output file could not be written (disk full...): the frames finished before are kept.
     """
     session = Session(session_dir)
     m = get_method(method)
     params = params if params is not None else m.params_type()
     out = Path(out_dir)
-    (out / "frames").mkdir(parents=True, exist_ok=True)
+    header = journal_header(method, params_to_dict(params), _as_dict(selfcheck), session.dir)
+    stale, earlier = check_claim(out, existing, header)  # refused before any work
     backgrounds = load_background_frames(session)
-    try:
-        reconstruct = m.prepare(session.rig, backgrounds, params)
-    except ValueError as exc:  # FrameError included
-        raise SessionError(_background_error(session, exc)) from None
+    reconstruct = _prepare_method(session, m, backgrounds, params)
     check_model, radii_mm = _prepare_check(session, method, params, backgrounds, selfcheck)
-    mm_px = mm_per_pixel(session)
+    header["mm_per_px"] = mm_per_pixel(session)
+    remove_files(out, stale)
+    kept, backbones = ([], {}) if earlier is None else _kept_frames(out, earlier[1])
+    writer = RunWriter(out, header if earlier is None else {**earlier[0], "mm_per_px": header["mm_per_px"]}, kept, backbones)
+    done = {r["frame"] for r in kept}
     wanted = set(frames) if frames is not None else None
-    todo = [f for f in session.frames if wanted is None or f.index in wanted]
-    records, backbones = [], {}
-    with FrameTable(out / "frames.csv") as table:
+    todo = [f for f in session.frames if (wanted is None or f.index in wanted) and f.index not in done]
+    try:
         for n, fr in enumerate(todo):
-            rec = {"frame": fr.index, "t_s": fr.t_s, "status": "ok", "reason": None}
-            # Whatever goes wrong with one frame is that frame's failure, with a
-            # one-line reason; the run goes on and keeps what it has written.
-            try:
-                images = session.frame_images(fr.index)
-                for cam, img in images.items():
-                    c = session.rig[cam]
-                    if img.shape != (c.height, c.width):
-                        raise FrameError(f"image is {img.shape[1]}x{img.shape[0]} but the calibration is {c.width}x{c.height}", cam)
-                t0 = time.perf_counter()
-                result = reconstruct(images)
-                rec["ms"] = 1e3 * (time.perf_counter() - t0)
-                pts = np.asarray(result.points_world_mm, float)
-                if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] == 0 or not np.all(np.isfinite(pts)):
-                    raise FrameError("the reconstruction has no valid backbone point")
-            except Exception as exc:  # noqa: BLE001 - per-frame isolation is the point
-                if os.environ.get("CTR_BENCH_DEBUG") and not isinstance(exc, (FrameError, SessionError)):
-                    raise  # a developer asked to see where an unforeseen failure comes from
-                rec.pop("ms", None)
-                rec.update(status="failed", reason=_one_line(exc))
-            if rec["status"] == "ok":
-                # The fast method's temporal check: recorded, the frame stays as the self-check judges it.
-                rec["jump_flag"] = bool(getattr(result, "jump_flag", False))
-                rec["jump_reason"] = getattr(result, "jump_reason", None) if rec["jump_flag"] else None
-                if check_model is not None:
-                    selfcheck_record(rec, check_model, images, pts, radii_mm, selfcheck)
-                own = getattr(result, "suspect_reason", None)
-                if own and rec["status"] == "ok":  # the method's own doubt (recorded when the check passed)
-                    rec.update(status="suspect", reason=str(own))
-                backbones[fr.index] = pts
-                write_backbone_csv(out / "frames" / f"{fr.index:06d}.csv", pts)
-                _describe(rec, result, pts)
-                _score(rec, session, fr.index, pts)
-            records.append(rec)
-            table.add(rec)
-            summary = summarize(records, method, params, session.dir, mm_px, selfcheck)
-            write_json_atomic(out / "summary.json", summary)
-            if progress:
-                post = {"ms": f"{rec['ms']:.0f}"} if rec["status"] == "ok" else {rec["status"]: fr.index}
-                progress("reconstruct", n + 1, len(todo), **post)
-    np.savez_compressed(
-        out / "backbones.npz",
-        frames=np.array(sorted(backbones), dtype=np.int64),
-        **{f"frame_{i:06d}": p for i, p in backbones.items()},
-    )
-    summary = summarize(records, method, params, session.dir, mm_px, selfcheck)
-    write_json_atomic(out / "summary.json", summary)
-    return summary
+            rec, pts = _reconstruct_frame(session, fr, reconstruct, check_model, radii_mm, selfcheck)
+            writer.add(rec, pts)
+            _report_progress(progress, rec, n + 1, len(todo))
+    except BaseException as exc:  # an interrupt or a failed write: keep what is finished
+        writer.abort(exc)
+        raise
+    return writer.finish()
+
+
+def read_run(out_dir) -> tuple:
+    """A run directory's summary and backbones, read only from the files its summary lists.
+
+    A summary that is not ``complete`` (the run was killed or is still going:
+    summary.json is rewritten every few seconds) is rebuilt from the journal.
+    Backbones come from the ``backbones.npz`` the summary lists, else the
+    per-frame CSVs its records list; a file of another run (another SHA-1
+    than the summary records) is an error naming it. A summary without ``run_id`` (older
+    ctr-bench, or the live summary of ``ctr-bench experiment``) lists frames
+    only: the backbones of its reconstructed frames are read, and no others.
+
+    Returns
+    -------
+    (summary, backbones) : (dict, dict frame -> (n, 3) world mm)
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        One line naming the file.
+    """
+    out = Path(out_dir)
+    summary = read_summary(out / SUMMARY)
+    if summary.get("run_id") is None:
+        return summary, _unlisted_backbones(out, summary)
+    if not summary.get("complete"):
+        summary = _rebuilt_summary(out, summary)
+    return summary, _listed_backbones(out, summary)
+
+
+def _rebuilt_summary(out: Path, summary: dict) -> dict:
+    """The summary of a run cut short, rebuilt from its journal (which has every finished frame)."""
+    path = out / ((summary.get("files") or {}).get("journal") or JOURNAL)
+    if not path.exists():
+        return summary
+    header, records = read_journal(path)
+    if header.get("run_id") != summary["run_id"]:
+        raise ValueError(f"{path}: written by run {header.get('run_id')}, not by run {summary['run_id']} that "
+                         f"{out / SUMMARY} describes (a stale file of another run)")
+    records = list({r["frame"]: r for r in records}.values())
+    return json_safe(summarize(records, header.get("method"), header.get("params"), header.get("session"),
+                               header.get("mm_per_px"), header.get("selfcheck"), run_id=header["run_id"]))
+
+
+def _listed_backbones(out: Path, summary: dict) -> dict:
+    """Backbones from the files a summary with a run id lists: its backbones.npz, else its per-frame CSVs."""
+    files = summary.get("files") or {}
+    if files.get("backbones"):
+        return read_backbones_npz(out / files["backbones"], sha1=files.get("backbones_sha1"))
+    found = {}
+    for rec in summary.get("per_frame", []):
+        if rec.get("backbone_csv"):
+            path = out / rec["backbone_csv"]
+            if not path.is_file():
+                raise ValueError(f"{path}: missing ({out / SUMMARY} lists it for frame {rec['frame']})")
+            found[int(rec["frame"])] = read_backbone_csv(path, sha1=rec.get("backbone_sha1"))
+    return found
+
+
+def _unlisted_backbones(out: Path, summary: dict) -> dict:
+    """Backbones of the frames a summary without run id says were reconstructed (backbones.npz, else their CSVs)."""
+    wanted = {int(r["frame"]) for r in summary.get("per_frame", []) if r.get("status") in ("ok", "suspect")}
+    if (out / BACKBONES).exists():
+        return read_backbones_npz(out / BACKBONES, frames=wanted)
+    found = {}
+    for i in sorted(wanted):
+        path = out / FRAMES_DIR / f"{i:06d}.csv"
+        try:
+            found[i] = read_backbone_csv(path)
+        except (OSError, ValueError):
+            continue  # a run cut short may not have written it; the frame is drawn without a backbone
+    return found
 
 
 def format_table(summary: dict) -> str:

@@ -2,8 +2,9 @@
 
 ``ctr-bench run`` and ``ctr-bench reconstruct`` build it at the end (``--no-report``
 skips it); ``ctr-bench report OUT`` rebuilds it from what the run wrote
-(``summary.json``, ``backbones.npz`` and, when it can be found, the session with its
-images, calibration and ground truth). Everything is static: HTML with relative links
+(the files ``summary.json`` lists: ``backbones.npz`` or the per-frame CSVs, the journal
+of a run cut short; and, when it can be found, the session with its images, calibration
+and ground truth). Everything is static: HTML with relative links
 to PNGs, no JavaScript, no network. Contents and file names: docs/outputs.md.
 
 The figure functions take arrays and write one PNG each (matplotlib's Agg canvas,
@@ -27,8 +28,6 @@ from PIL import Image, ImageDraw, ImageFont
 
 from recon.backbone import arc_length
 from recon.tubemesh import tube_mesh, radii_along
-
-from .backbone_csv import read_backbone_csv
 
 __all__ = [
     "build_report",
@@ -676,36 +675,17 @@ class RunData:
 
 
 def load_run(out_dir) -> RunData:
-    """Read a run directory (``summary.json``, ``backbones.npz`` or ``frames/*.csv``, the session).
+    """Read a run directory: what its summary lists (:func:`rig.reconstruct.read_run`), and the session.
 
     Raises ``FileNotFoundError``/``ValueError`` with one line naming the file when the
-    directory holds no run.
+    directory holds no run, or a file the summary lists is missing or another run's.
     """
+    from .reconstruct import read_run
+
     out = Path(out_dir)
     if not out.is_dir():
         raise FileNotFoundError(f"{out}: not a directory")
-    sp = out / "summary.json"
-    if not sp.exists():
-        raise FileNotFoundError(f"{sp}: missing (not a ctr-bench run or reconstruct output directory)")
-    try:
-        summary = json.loads(sp.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{sp}: not valid JSON ({exc.msg})") from None
-    if summary.get("format") != "ctr-bench-summary":
-        raise ValueError(f"{sp}: format is {summary.get('format')!r}, expected 'ctr-bench-summary'")
-    backbones = {}
-    npz = out / "backbones.npz"
-    if npz.exists():
-        with np.load(npz) as z:
-            for k in z.files:
-                if k.startswith("frame_"):
-                    backbones[int(k[6:])] = np.asarray(z[k], float).reshape(-1, 3)
-    else:  # an interrupted run: the CSVs are written frame by frame
-        for p in sorted((out / "frames").glob("[0-9]*.csv")):
-            try:
-                backbones[int(p.stem)] = read_backbone_csv(p)
-            except ValueError:
-                pass
+    summary, backbones = read_run(out)
     run = RunData(out=out, summary=summary, backbones=backbones)
     candidates = []
     if summary.get("session"):

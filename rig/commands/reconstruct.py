@@ -1,7 +1,6 @@
 """``ctr-bench reconstruct SESSION_DIR --out DIR``: reconstruct (and score) every frame of a session."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 
@@ -30,6 +29,27 @@ def add_report_options(p) -> None:
                    help="do not build OUT/report/index.html and OUT/meshes (ctr-bench report OUT builds them later)")
     p.add_argument("--live", action="store_true",
                    help="show images, backbones and errors live in a rerun viewer (needs the 'live' extra: rerun-sdk)")
+
+
+def add_existing_options(p, session: tuple = ()) -> None:
+    """--overwrite and --resume, shared by run and reconstruct: what to do with an output directory holding an earlier run.
+
+    ``session``: (what --overwrite also removes, what --resume reuses) of ``run``'s rendered session; () for reconstruct.
+    """
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--overwrite", action="store_true",
+                   help="OUT holds an earlier run: remove what it wrote (summary, journal, frame files, backbones, report, "
+                   f"meshes{session and ', ' + session[0]}; nothing else) and start again")
+    g.add_argument("--resume", action="store_true",
+                   help="OUT holds an earlier run cut short: keep its finished frames and do the others (same method, "
+                   f"parameters and session, else refused naming the difference){session and '; ' + session[1]}")
+
+
+def existing_mode(args) -> str:
+    """``reconstruct_session``'s ``existing`` for the parsed --overwrite / --resume (refuse when neither)."""
+    if getattr(args, "overwrite", False):
+        return "overwrite"
+    return "resume" if getattr(args, "resume", False) else "refuse"
 
 
 def method_params(args, session_dir=None):
@@ -75,11 +95,13 @@ def reconstruct_and_report(session_dir: Path, out: Path, args) -> dict:
         from rig.live import LiveLogger
 
         live = LiveLogger()
-    summary = reconstruct_session(session_dir, out, method=args.method, params=params,
-                                  progress=live.watch(session_dir, out, progress) if live else progress)
-    progress.close()
+    try:
+        summary = reconstruct_session(session_dir, out, method=args.method, params=params, existing=existing_mode(args),
+                                      progress=live.watch(session_dir, out, progress) if live else progress)
+    finally:
+        progress.close()
     print(format_table(summary))
-    print(f"\noutputs in {out}: frames/*.csv, backbones.npz, summary.json")
+    print(f"\noutputs in {out}: frames/*.csv, frames.jsonl, frames.csv, backbones.npz, summary.json")
     if not getattr(args, "no_report", False):
         from rig.report import report_or_warn
 
@@ -90,7 +112,9 @@ def reconstruct_and_report(session_dir: Path, out: Path, args) -> dict:
 def _run(args) -> int:
     summary = reconstruct_and_report(Path(args.session), Path(args.out), args)
     if args.json:
-        print(json.dumps({k: v for k, v in summary.items() if k != "per_frame"}, indent=2))
+        from rig.rundir import json_text
+
+        print(json_text({k: v for k, v in summary.items() if k != "per_frame"}))
     return 0 if summary["failed_frames"] < summary["frames"] else 1
 
 
@@ -100,7 +124,9 @@ def register(sub) -> None:
                        "write a CSV per frame, one NPZ and summary.json, and score against ground truth when the session has it.")
     p.add_argument("session", help="session directory (docs/session-format.md)")
     add_method_options(p)
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--out", required=True, help="output directory (one holding an earlier run is refused unless "
+                   "--overwrite or --resume)")
+    add_existing_options(p)
     p.add_argument("--json", action="store_true", help="also print the summary (without per-frame list) as JSON")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     add_report_options(p)

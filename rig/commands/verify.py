@@ -12,13 +12,12 @@ along_arc_length.csv and three PNG plots.
 from __future__ import annotations
 
 import csv
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from rig.backbone_csv import read_backbone_csv
+from rig.rundir import write_json_atomic
 
 from .options import parse_frames  # the one --frames LIST parser (rig/commands/import_session.py imports it from here)
 
@@ -50,27 +49,6 @@ def _resolve_session(recon: Path, named: str | None) -> Path:
     raise ValueError(f"{recon / 'summary.json'}: its session {named!r} was not found (looked in {', '.join(str(c) for c in cands[:4])}); pass --session DIR")
 
 
-def _recon_backbones(recon: Path, summary: dict) -> dict:
-    npz = recon / "backbones.npz"
-    out = {}
-    if npz.exists():
-        try:
-            with np.load(npz) as z:
-                for i in z["frames"]:
-                    out[int(i)] = np.asarray(z[f"frame_{int(i):06d}"], float)
-        except (OSError, ValueError, KeyError) as exc:
-            raise ValueError(f"{npz}: unreadable ({exc})") from None
-        return out
-    # an interrupted reconstruction: the per-frame CSVs of the frames it finished
-    for rec in summary.get("per_frame", []):
-        if rec.get("status") != "ok":
-            continue
-        p = recon / "frames" / f"{int(rec['frame']):06d}.csv"
-        if p.exists():
-            out[int(rec["frame"])] = read_backbone_csv(p)
-    return out
-
-
 def load_dataset(path, session=None, robot=None, model=None, frames=None) -> Dataset:
     """Frames (recorded joints + measured backbone) and the nominal model state.
 
@@ -91,12 +69,11 @@ def load_dataset(path, session=None, robot=None, model=None, frames=None) -> Dat
         raise ValueError(f"{path}: not a directory (expected a reconstruction output directory or a session)")
     measured, failed = {}, {}
     if (path / "summary.json").exists():
-        try:
-            summary = json.loads((path / "summary.json").read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path / 'summary.json'}: not valid JSON ({exc.msg})") from None
+        from rig.reconstruct import read_run
+
+        # only what the summary lists: never a stale backbones.npz or frame CSV of another run
+        summary, measured = read_run(path)
         sdir = Path(session) if session else _resolve_session(path, summary.get("session"))
-        measured = _recon_backbones(path, summary)
         failed = {int(r["frame"]): r.get("reason") or "failed" for r in summary.get("per_frame", []) if r.get("status") != "ok"}
         source = "reconstruction"
         sess = Session(sdir)
@@ -174,14 +151,8 @@ def format_table(records: list, agg: dict, title: str) -> str:
 
 
 def _json_records(records):
-    out = []
-    for r in records:
-        d = {k: v for k, v in r.items() if k not in ("s_mm", "along_error_mm", "predicted_mm")}
-        for k, v in list(d.items()):
-            if isinstance(v, float) and not np.isfinite(v):
-                d[k] = None
-        out.append(d)
-    return out
+    """The per-frame records without their arrays (those go to along_arc_length.csv and the plots)."""
+    return [{k: v for k, v in r.items() if k not in ("s_mm", "along_error_mm", "predicted_mm")} for r in records]
 
 
 def write_outputs(out: Path, ds: Dataset, records: list, agg: dict, profile: dict, plots: bool = True) -> None:
@@ -194,7 +165,7 @@ def write_outputs(out: Path, ds: Dataset, records: list, agg: dict, profile: dic
         "aggregate": agg, "skipped": [{"frame": i, "reason": why} for i, why in ds.skipped],
         "per_frame": _json_records(records), "along_arc_length": profile,
     }
-    (out / "verify.json").write_text(json.dumps(doc, indent=2) + "\n")
+    write_json_atomic(out / "verify.json", doc)  # unknown (non-finite) figures as null
     with open(out / "verify.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["frame", "status", "tip_error_mm", "mean_error_mm", "max_error_mm", "length_error_mm", "s_start_mm", "reason"])

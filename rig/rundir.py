@@ -1,0 +1,486 @@
+"""The bookkeeping files of a run directory, and who may write into one.
+
+One owner for these formats (docs/outputs.md):
+
+* ``frames.jsonl``, the run's journal: line 1 is a header (``format``
+  ``"ctr-bench-frames"``, ``run_id``, ``method``, ``params``, ``selfcheck``,
+  ``session``, ``mm_per_px``); every further line is the record of one finished
+  frame (the per-frame dict of summary.json), appended and flushed as the frame
+  finishes and fsynced every :data:`FSYNC_EVERY_S`. A killed run keeps every
+  line it flushed; ``--resume`` and ``report`` rebuild the run from it.
+* ``summary.json``: the aggregates with the run's ``run_id``, ``complete`` and
+  the ``files`` it wrote, replaced atomically (:func:`write_json_atomic`).
+* ``backbones.npz``: every backbone, written at the end; the summary records its SHA-1.
+
+A directory holding an earlier run's files (:func:`earlier_files`) is refused
+(:func:`check_claim`) unless the earlier run is removed (``overwrite``: exactly
+those files, nothing a user put there) or continued (``resume``: the same
+method, parameters, self-check and session, else the difference is named).
+
+JSON has no NaN or infinity: every JSON written here (summary, journal lines)
+goes through :func:`json_safe`, so an unknown figure is ``null``, never an
+aborted write.
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import os
+import re
+import secrets
+import shutil
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["SUMMARY", "JOURNAL", "TABLE", "BACKBONES", "FRAMES_DIR", "RunDirError", "WriteError", "writing",
+           "json_safe", "json_text", "write_json_atomic", "write_summary_json", "new_run_id", "earlier_files", "remove_files",
+           "check_claim", "journal_header", "Journal", "read_journal", "read_summary", "write_backbones_npz", "read_backbones_npz",
+           "MODES"]
+
+SUMMARY = "summary.json"
+JOURNAL = "frames.jsonl"
+TABLE = "frames.csv"
+BACKBONES = "backbones.npz"
+FRAMES_DIR = "frames"
+JOURNAL_FORMAT = "ctr-bench-frames"
+SUMMARY_FORMAT = "ctr-bench-summary"
+#: What a run does with a directory holding an earlier run.
+MODES = ("refuse", "overwrite", "resume")
+#: The journal is synced to disk at most this often (a flush per line already survives SIGKILL;
+#: the sync bounds what a power cut can take).
+FSYNC_EVERY_S = 2.0
+
+# Files (relative to the run directory) that a run, or a report built on it, writes.
+_RUN_FILES = (SUMMARY, JOURNAL, TABLE, BACKBONES, f".{SUMMARY}.tmp", f".{JOURNAL}.tmp", f".{BACKBONES}.tmp.npz")
+_RUN_DIRS = ("report", ".report-tmp")
+_FRAME_FILE = re.compile(r"\d{6}\.csv")
+_MESH_FILE = re.compile(r"\d{6}(_both)?\.(ply|obj|glb)")
+
+
+class RunDirError(FileExistsError):
+    """An output directory this run may not write into (holds another run); one line naming it.
+
+    A ``FileExistsError`` rather than a ``ValueError``: callers that turn a
+    ``ValueError`` into failed frames must not take a refusal for one.
+    """
+
+
+class WriteError(OSError):
+    """An output file that could not be written (disk full, permission): one line naming the file.
+
+    Parameters
+    ----------
+    path : path
+        The file being written.
+    exc : OSError
+        What the system said.
+    """
+
+    def __init__(self, path, exc: OSError):
+        super().__init__(exc.errno, exc.strerror or str(exc))
+        self.filename = str(path)
+        self.note = ""
+
+    def __str__(self) -> str:
+        code = f" [errno {self.errno}]" if self.errno is not None else ""
+        return f"{self.filename}: cannot write: {self.strerror}{code}" + (f"; {self.note}" if self.note else "")
+
+
+@contextmanager
+def writing(path):
+    """Context in which an ``OSError`` becomes a :class:`WriteError` naming ``path``.
+
+    An ``OSError`` raised on an open file (``write``, ``flush``) names no file:
+    "[Errno 28] No space left on device" alone does not say what was being written.
+    """
+    try:
+        yield
+    except WriteError:
+        raise
+    except OSError as exc:
+        raise WriteError(path, exc) from exc
+
+
+# ----------------------------------------------------------------------------- JSON
+def json_safe(o):
+    """``o`` with every non-finite float (NumPy's too) replaced by None, NumPy scalars and arrays as Python ones."""
+    if isinstance(o, dict):
+        return {k: json_safe(v) for k, v in o.items()}
+    if isinstance(o, np.ndarray):
+        return json_safe(o.tolist())
+    if isinstance(o, (list, tuple)):
+        return [json_safe(v) for v in o]
+    if isinstance(o, (float, np.floating)):
+        return float(o) if np.isfinite(o) else None
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.bool_):
+        return bool(o)
+    return o
+
+
+def _json_default(o):
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serializable: {type(o).__name__}")
+
+
+def json_text(data, indent: int | None = 2) -> str:
+    """JSON of ``data`` with unknown (non-finite) numbers as null; one line when ``indent`` is None."""
+    return json.dumps(json_safe(data), indent=indent, allow_nan=False, default=_json_default)
+
+
+def write_json_atomic(path, data) -> None:
+    """Write JSON to a temporary name and rename it: readers never see half a file.
+
+    JSON has no NaN or infinity: such values (an unknown figure, a limit that
+    is off) are written as null rather than aborting the write. A failed write
+    (disk full) raises :class:`WriteError` naming ``path`` and leaves the
+    earlier file as it was.
+    """
+    _write_text_atomic(path, json_text(data) + "\n")
+
+
+def write_summary_json(path, head: dict, record_lines: list) -> None:
+    """Write summary.json atomically: ``head``'s keys, then ``per_frame`` from the records' JSON lines.
+
+    The lines are the journal's (:meth:`Journal.add` returns them): each frame is
+    encoded once, when it finishes, so a rewrite of a 10,000-frame summary is a
+    join, not a re-encoding. One frame a line, under an indented head.
+    """
+    text = json_text(head)[:-2] + ',\n  "per_frame": [' + ",".join(f"\n    {line}" for line in record_lines)
+    text += ("\n  " if record_lines else "") + "]\n}\n"
+    _write_text_atomic(path, text)
+
+
+def _write_text_atomic(path, text: str) -> None:
+    """Write ``text`` under a temporary name and rename it; a failure names ``path`` and leaves the old file."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with writing(path):
+        try:
+            tmp.write_text(text)
+            os.replace(tmp, path)
+        except OSError:
+            tmp.unlink(missing_ok=True)
+            raise
+
+
+def read_summary(path) -> dict:
+    """A run's summary.json; ``FileNotFoundError``/``ValueError`` with one line naming it."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: missing (not a ctr-bench run or reconstruct output directory)")
+    try:
+        summary = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc.msg})") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text file") from None
+    if not isinstance(summary, dict) or summary.get("format") != SUMMARY_FORMAT:
+        got = summary.get("format") if isinstance(summary, dict) else type(summary).__name__
+        raise ValueError(f"{path}: format is {got!r}, expected {SUMMARY_FORMAT!r}")
+    return summary
+
+
+# ----------------------------------------------------------------------------- the directory
+def new_run_id() -> str:
+    """A run's id: its start time and a random tag (two runs started in the same second differ)."""
+    return f"{time.strftime('%Y%m%dT%H%M%S')}-{secrets.token_hex(4)}"
+
+
+def earlier_files(out) -> list:
+    """The files and directories in ``out`` that a run (or a report of it) wrote; [] when it holds none.
+
+    Only names a run writes count: a user's own files in ``out`` are neither
+    a run nor removed by ``overwrite``.
+    """
+    out = Path(out)
+    if not out.is_dir():
+        return []
+    found = [out / n for n in _RUN_FILES if (out / n).is_file()] + [out / n for n in _RUN_DIRS if (out / n).is_dir()]
+    for sub, pattern in ((FRAMES_DIR, _FRAME_FILE), ("meshes", _MESH_FILE)):
+        if (out / sub).is_dir():
+            found += sorted(p for p in (out / sub).iterdir() if p.is_file() and pattern.fullmatch(p.name))
+    return found
+
+
+def remove_files(out, files) -> None:
+    """Remove ``files`` (from :func:`earlier_files`), then ``frames/`` and ``meshes/`` when that left them empty."""
+    out = Path(out)
+    for p in files:
+        with writing(p):
+            if p.is_dir():
+                shutil.rmtree(p)
+            else:
+                p.unlink(missing_ok=True)
+    for sub in (FRAMES_DIR, "meshes"):
+        d = out / sub
+        if d.is_dir() and not any(d.iterdir()):
+            d.rmdir()
+
+
+def _describe_earlier(out: Path, files: list) -> str:
+    """A few words on what the earlier run in ``out`` was (method, frames), else the files found."""
+    try:
+        s = json.loads((out / SUMMARY).read_text())
+        return f"method {s.get('method')!r}, {s.get('frames')} frames"
+    except (OSError, ValueError, AttributeError):
+        names = sorted({p.relative_to(out).parts[0] for p in files})
+        return ", ".join(names)
+
+
+def _flat(d, prefix="") -> dict:
+    """Nested dict -> {"a.b": value} (to name the parameter that differs)."""
+    out = {}
+    for k, v in (d or {}).items():
+        if isinstance(v, dict):
+            out.update(_flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def _difference(earlier: dict, header: dict) -> str | None:
+    """What differs between the earlier run's journal header and this run's, in words; None when they agree."""
+    if earlier.get("method") != header["method"]:
+        return f"used method {earlier.get('method')!r}, not {header['method']!r}"
+    if (earlier.get("selfcheck") is None) != (header["selfcheck"] is None):
+        return f"had the self-check {'off' if earlier.get('selfcheck') is None else 'on'}"
+    for key in ("params", "selfcheck"):
+        # compared as JSON reads them back: an infinite limit is null on both sides
+        a, b = _flat(json_safe(earlier.get(key))), _flat(json_safe(header[key]))
+        diff = sorted(k for k in a.keys() | b.keys() if a.get(k, "missing") != b.get(k, "missing"))
+        if diff:
+            k = diff[0]
+            more = f" (and {len(diff) - 1} more)" if len(diff) > 1 else ""
+            return f"had {key} {k} = {a.get(k, 'missing')!r}, not {b.get(k, 'missing')!r}{more}"
+    if Path(earlier.get("session") or "").resolve() != Path(header["session"]).resolve():
+        return f"reconstructed session {earlier.get('session')!r}, not {header['session']!r}"
+    return None
+
+
+def check_claim(out, mode: str, header: dict):
+    """Whether this run may write into ``out``, and what it continues.
+
+    Parameters
+    ----------
+    out : path
+        The output directory.
+    mode : {"refuse", "overwrite", "resume"}
+        What to do when ``out`` holds an earlier run.
+    header : dict
+        This run's journal header (method, params, selfcheck, session...).
+
+    Returns
+    -------
+    (files, earlier) : (list of Path, (header, records) or None)
+        The earlier run's files (to remove before writing, for ``overwrite``)
+        and, for ``resume``, the earlier journal's header and records.
+
+    Raises
+    ------
+    RunDirError
+        ``out`` is a session directory, or holds an earlier run and ``mode`` is
+        ``refuse``, or ``resume`` finds a run it cannot continue (one line naming it).
+    """
+    out = Path(out)
+    if mode not in MODES:
+        raise ValueError(f"existing={mode!r}: expected one of {', '.join(MODES)}")
+    if (out / "session.json").exists():
+        raise RunDirError(f"{out}: is a session directory; choose another output directory")
+    files = earlier_files(out)
+    if not files:
+        return [], None
+    if mode == "refuse":
+        raise RunDirError(f"{out}: holds an earlier run ({_describe_earlier(out, files)}); "
+                          "--overwrite replaces it, --resume continues it, or choose another --out")
+    if mode == "overwrite":
+        return files, None
+    journal = out / JOURNAL
+    if not journal.exists():
+        raise RunDirError(f"{out}: --resume: the earlier run has no {JOURNAL} (written by an older ctr-bench, "
+                          "or cut before its first frame); --overwrite replaces it")
+    earlier, records = read_journal(journal)
+    why = _difference(earlier, header)
+    if why is not None:
+        raise RunDirError(f"{out}: --resume: the earlier run {why}; --overwrite replaces it, or choose another --out")
+    return [p for p in files if p.name in _RUN_DIRS or p.parent.name == "meshes"], (earlier, records)
+
+
+# ----------------------------------------------------------------------------- frames.jsonl
+def journal_header(method: str, params: dict, selfcheck: dict | None, session_dir) -> dict:
+    """The header of a new run's journal: what it reconstructs, how, and its new ``run_id``.
+
+    The caller adds ``mm_per_px`` once the session's calibration is known.
+    """
+    return {"format": JOURNAL_FORMAT, "version": 1, "run_id": new_run_id(), "method": method, "params": params,
+            "selfcheck": selfcheck, "session": str(session_dir), "mm_per_px": None,
+            "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+
+
+class Journal:
+    """``frames.jsonl`` open for appending: one flushed line per finished frame.
+
+    Parameters
+    ----------
+    path : path
+    header : dict
+        The run's header, line 1.
+    records : list of dict, optional
+        The frames a resumed run keeps: the journal is rewritten with them
+        (under a temporary name, then renamed, so that a kill while rewriting
+        loses none), and a line a kill had torn is gone.
+    """
+
+    def __init__(self, path, header: dict, records=()):
+        self.path = Path(path)
+        tmp = self.path.with_name(f".{self.path.name}.tmp")
+        with writing(self.path):
+            with open(tmp, "w", encoding="utf-8") as fh:
+                fh.writelines(json_text(r, indent=None) + "\n" for r in [header, *records])
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, self.path)
+            self._fh = open(self.path, "a", encoding="utf-8")
+        self._synced = time.monotonic()
+
+    def add(self, rec: dict) -> str:
+        """Append one frame's record; flushed at once (a SIGKILL keeps it), synced every :data:`FSYNC_EVERY_S`.
+
+        Returns the line written (without its newline).
+        """
+        line = json_text(rec, indent=None)
+        with writing(self.path):
+            self._fh.write(line + "\n")
+            self._fh.flush()
+            if time.monotonic() - self._synced >= FSYNC_EVERY_S:
+                self.sync()
+        return line
+
+    def sync(self) -> None:
+        """Flush and fsync what was appended."""
+        with writing(self.path):
+            self._fh.flush()
+            os.fsync(self._fh.fileno())
+        self._synced = time.monotonic()
+
+    def close(self) -> None:
+        if not self._fh.closed:
+            try:
+                self.sync()
+            finally:
+                self._fh.close()
+
+
+def read_journal(path):
+    """A journal's header and its records.
+
+    A last line without its newline or not valid JSON was cut by a kill: it is
+    left out (its frame was not finished). A bad line before the last is an
+    error naming the file and line.
+
+    Returns
+    -------
+    (header, records) : (dict, list of dict)
+    """
+    path = Path(path)
+    data = path.read_bytes()
+    lines = data.split(b"\n")
+    torn = lines[-1] != b""  # what follows the last newline: empty, or a line a kill cut short (left out)
+    parsed = []
+    for n, line in enumerate(lines[:-1], start=1):
+        try:
+            parsed.append(json.loads(line))
+        except (ValueError, UnicodeDecodeError):
+            if n == len(lines) - 1 and n > 1 and not torn:
+                break  # the last line, cut inside (a partial write at a kill or a full disk)
+            raise ValueError(f"{path}:{n}: not a JSON record") from None
+    if not parsed or not isinstance(parsed[0], dict) or parsed[0].get("format") != JOURNAL_FORMAT:
+        raise ValueError(f"{path}: not a ctr-bench frames journal (line 1 is no {JOURNAL_FORMAT!r} header)")
+    for n, rec in enumerate(parsed[1:], start=2):
+        if not isinstance(rec, dict) or "frame" not in rec:
+            raise ValueError(f"{path}:{n}: not a frame record")
+    return parsed[0], parsed[1:]
+
+
+def last_journal_record(path, tail_bytes: int = 1 << 16) -> dict | None:
+    """The last finished frame's record in a journal (None before the first), read from its end only.
+
+    For watchers called after every frame (the live view): reading the whole
+    journal each time would grow with the run. A record longer than
+    ``tail_bytes`` is not found (None).
+    """
+    path = Path(path)
+    with open(path, "rb") as fh:
+        fh.seek(0, os.SEEK_END)
+        size = fh.tell()
+        fh.seek(max(0, size - tail_bytes))
+        lines = fh.read().split(b"\n")
+    for line in reversed(lines[1:-1] if size > tail_bytes else lines[:-1]):  # whole lines only
+        try:
+            rec = json.loads(line)
+        except (ValueError, UnicodeDecodeError):
+            continue
+        return rec if isinstance(rec, dict) and "frame" in rec else None
+    return None
+
+
+# ----------------------------------------------------------------------------- backbones.npz
+def write_backbones_npz(path, backbones: dict) -> str:
+    """All backbones (``frame_NNNNNN`` arrays, ``frames``), replaced atomically; returns the file's SHA-1 (hex).
+
+    The summary records the SHA-1: a reader can then tell this run's file from
+    a stale one of another run (:func:`read_backbones_npz`).
+    """
+    path = Path(path)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, frames=np.array(sorted(backbones), dtype=np.int64),
+                        **{f"frame_{i:06d}": p for i, p in backbones.items()})
+    data = buf.getvalue()
+    tmp = path.with_name(f".{path.name}.tmp.npz")
+    with writing(path):
+        try:
+            tmp.write_bytes(data)
+            os.replace(tmp, path)
+        except OSError:
+            tmp.unlink(missing_ok=True)
+            raise
+    return hashlib.sha1(data).hexdigest()
+
+
+def read_backbones_npz(path, sha1: str | None = None, frames=None) -> dict:
+    """Frame -> (n, 3) backbone of a ``backbones.npz``.
+
+    Parameters
+    ----------
+    path : path
+    sha1 : str, optional
+        The SHA-1 the writing run recorded in its summary: other bytes are a
+        stale file of another run (or one changed since), an error naming it.
+    frames : set of int, optional
+        Read only these frames (a summary without file list lists its frames).
+
+    Raises
+    ------
+    ValueError
+        Missing, unreadable, or not the file the run wrote.
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ValueError(f"{path}: unreadable ({exc.strerror or exc})") from None
+    if sha1 is not None and hashlib.sha1(data).hexdigest() != sha1:
+        raise ValueError(f"{path}: not the file the run wrote (its SHA-1 differs from summary.json's: a stale file of "
+                         "another run, or changed since; reconstruct again with --overwrite)")
+    try:
+        with np.load(io.BytesIO(data)) as z:
+            keys = [k for k in z.files if k.startswith("frame_") and (frames is None or int(k[6:]) in frames)]
+            return {int(k[6:]): np.asarray(z[k], float).reshape(-1, 3) for k in keys}
+    except (OSError, ValueError, KeyError, EOFError) as exc:
+        raise ValueError(f"{path}: unreadable ({type(exc).__name__}: {' '.join(str(exc).split())})") from None
