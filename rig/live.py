@@ -11,13 +11,13 @@ rerun); :class:`LiveLogger` sends it.
 """
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from .backbone_csv import read_backbone_csv
+from .rundir import JOURNAL, last_journal_record
 
 __all__ = ["LiveLogger", "prepare_frame", "import_rerun", "NOT_INSTALLED"]
 
@@ -140,8 +140,8 @@ class LiveLogger:
     def watch(self, session_dir, out_dir, progress=None):
         """A ``progress(stage, done, total, **postfix)`` callable for ``reconstruct_session``.
 
-        After each frame the run has already written ``summary.json`` and the frame's
-        CSV; this reads them (and the session's images and truth) and logs the frame,
+        After each frame the run has already appended the frame's record to its
+        journal (``frames.jsonl``) and written the frame's CSV; this reads them (and the session's images and truth) and logs the frame,
         then calls ``progress``. Without rerun it returns ``progress`` itself.
         """
         if not self.enabled:
@@ -170,11 +170,9 @@ class LiveLogger:
     def _log_latest(self, session_dir: Path, out_dir: Path, rig) -> None:
         from rig.session import read_image
 
-        summary = json.loads((out_dir / "summary.json").read_text())
-        recs = summary.get("per_frame") or []
-        if not recs or recs[-1]["frame"] in self._logged:
+        r = last_journal_record(out_dir / JOURNAL)
+        if r is None or r["frame"] in self._logged:
             return
-        r = recs[-1]
         fr = r["frame"]
         self._logged.add(fr)
         cams = rig.names if rig is not None else []

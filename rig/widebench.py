@@ -287,8 +287,9 @@ def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache
             for k, (scene, session_dir, classes) in enumerate(sessions):
                 run_dir = out_dir / "runs" / name / scene
                 try:
+                    # The bench owns its runs/ tree: a second bench into the same --out replaces them.
                     summary = reconstruct_session(session_dir, run_dir, name, params=_robot_params(name, session_dir),
-                                                  selfcheck=SelfCheckParams() if selfcheck else None)
+                                                  selfcheck=SelfCheckParams() if selfcheck else None, existing="overwrite")
                 except ValueError as exc:  # set-up refused for the whole scene: every frame failed
                     summary = {"per_frame": [{"frame": f.index, "status": "failed", "reason": str(exc).splitlines()[0]}
                                              for f in Session(session_dir).frames]}
