@@ -163,7 +163,7 @@ def _as_dict(params):
 
 
 def summarize(records: list, method: str, params, session_dir, mm_px: float, selfcheck: SelfCheckParams | None = None,
-              run_id: str | None = None, complete: bool = False, files: dict | None = None) -> dict:
+              run_id: str | None = None, complete: bool = False, files: dict | None = None, session_notes=()) -> dict:
     """Aggregate per-frame records into the summary.json document.
 
     Error and time aggregates are over the ``ok`` frames (as before the
@@ -172,6 +172,8 @@ def summarize(records: list, method: str, params, session_dir, mm_px: float, sel
     or their dicts. With a ``run_id`` the summary also names the run, whether
     it is ``complete`` and the ``files`` it wrote (default: the journal and the
     table; :class:`RunWriter` adds ``backbones`` and ``backbones_sha1`` at the end).
+    ``session_notes`` are what reading the session forgave (a frames.csv row
+    cut short by a crash), kept in the summary so that nothing is dropped unsaid.
     """
     ok = [r for r in records if r["status"] == "ok"]
     suspect = [r for r in records if r["status"] == "suspect"]
@@ -194,6 +196,7 @@ def summarize(records: list, method: str, params, session_dir, mm_px: float, sel
         "method": method,
         "params": _as_dict(params),
         "session": str(session_dir),
+        "session_notes": list(session_notes),
         "frames": len(records),
         "ok_frames": len(ok),
         "suspect_frames": len(suspect),
@@ -363,7 +366,7 @@ class RunWriter:
         """The summary of the frames written so far."""
         h = self.header
         return summarize(self.records, h["method"], h["params"], h["session"], h["mm_per_px"], h["selfcheck"],
-                         run_id=h["run_id"], complete=complete, files=self.files)
+                         run_id=h["run_id"], complete=complete, files=self.files, session_notes=h.get("session_notes", ()))
 
     def write_summary(self, complete: bool = False) -> dict:
         """Write summary.json now; the next one while the run goes is due after a pause proportional to its cost."""
@@ -484,9 +487,11 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
     reconstruct = _prepare_method(session, m, backgrounds, params)
     check_model, radii_mm = _prepare_check(session, method, params, backgrounds, selfcheck)
     header["mm_per_px"] = mm_per_pixel(session)
+    header["session_notes"] = list(session.notes)
     remove_files(out, stale)
     kept, backbones = ([], {}) if earlier is None else _kept_frames(out, earlier[1])
-    writer = RunWriter(out, header if earlier is None else {**earlier[0], "mm_per_px": header["mm_per_px"]}, kept, backbones)
+    now = {k: header[k] for k in ("mm_per_px", "session_notes")}
+    writer = RunWriter(out, header if earlier is None else {**earlier[0], **now}, kept, backbones)
     done = {r["frame"] for r in kept}
     wanted = set(frames) if frames is not None else None
     todo = [f for f in session.frames if (wanted is None or f.index in wanted) and f.index not in done]
@@ -541,7 +546,8 @@ def _rebuilt_summary(out: Path, summary: dict) -> dict:
                          f"{out / SUMMARY} describes (a stale file of another run)")
     records = list({r["frame"]: r for r in records}.values())
     return json_safe(summarize(records, header.get("method"), header.get("params"), header.get("session"),
-                               header.get("mm_per_px"), header.get("selfcheck"), run_id=header["run_id"]))
+                               header.get("mm_per_px"), header.get("selfcheck"), run_id=header["run_id"],
+                               session_notes=header.get("session_notes", ())))
 
 
 def _listed_backbones(out: Path, summary: dict) -> dict:

@@ -101,6 +101,8 @@ def reconstruct_and_report(session_dir: Path, out: Path, args) -> dict:
     finally:
         progress.close()
     print(format_table(summary))
+    for note in summary.get("session_notes") or ():
+        print(f"note: {note}")
     print(f"\noutputs in {out}: frames/*.csv, frames.jsonl, frames.csv, backbones.npz, summary.json")
     if not getattr(args, "no_report", False):
         from rig.report import report_or_warn
