@@ -1422,8 +1422,9 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
 
 
 #: Rounds of following the tube and locating its tip in :func:`extract_view` (each round goes on from a
-#: tip found well beyond the profiles).
-_MAX_FOLLOWS = 3
+#: tip found well beyond the profiles, or from the refitted end of a stretch the last round added; a
+#: round that adds nothing ends it).
+_MAX_FOLLOWS = 8
 
 
 def _merge_profiles(prof, s, c, ok, more):
@@ -1559,9 +1560,15 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
         # Where the tip stage walks on well beyond the profiles (lines along the axis see a tube whose edges
         # faded across a stretch of backdrop, or the step to a thinner tube whose core alone stands out),
         # the tube may go on: follow it again from there.
-        if not (np.isfinite(end_t) and end_t > 2.0 * r_end + 3.0):
+        if np.isfinite(end_t) and end_t > 2.0 * r_end + 3.0:
+            start = (p_end + end_t * t_end, t_end, sb + end_t)
+        elif added:
+            # The follower predicts its axis from its last few centres; across textured backdrop they can
+            # wander and the prediction leaves a bending tube. The refitted spline's end tangent is steadier:
+            # go on from there (seen: 120 px of a tube left beyond such a stop).
+            start = (p_end, t_end, sb)
+        else:
             break
-        start = (p_end + end_t * t_end, t_end, sb + end_t)
     if not np.isfinite(end_t):
         end_t = 0.0
     # Profiles within about a radius of the silhouette's end are cut by the end cap.
