@@ -95,6 +95,7 @@ class EigenBackground:
         # Needed for every frame; computed once here.
         object.__setattr__(self, "_basis_mean", self.basis @ self.mean)
         object.__setattr__(self, "_peak", float(self.mean.max()))
+        object.__setattr__(self, "_range", float(self.mean.max() - self.mean.min()))
 
     @property
     def k(self) -> int:
@@ -196,6 +197,36 @@ def _frame_vector(model: EigenBackground, frame, camera_name: str | None) -> np.
     return frame.reshape(-1).astype(np.float32)
 
 
+def no_picture(values: np.ndarray, background_peak: float, background_range: float,
+               black_fraction: float = 0.01, flat_fraction: float = 0.01) -> str | None:
+    """Why a frame holds no picture of the scene, or None: all black, or one flat level.
+
+    Parameters
+    ----------
+    values : array
+        The frame's gray levels (all pixels, or a spread-out sample of them).
+    background_peak, background_range : float
+        The mean background's brightest level and its spread (max - min), gray levels.
+    black_fraction : float
+        A frame whose brightest value is at most this fraction of
+        ``background_peak`` is all black (lens cap, camera not delivering);
+        0.01 is ~2 gray levels for a scene peaking at 200.
+    flat_fraction : float
+        A frame whose values span at most this fraction of
+        ``background_range`` is one flat level (a saturated or blank picture;
+        ~2 gray levels for a backdrop spanning 200): no robot can be told
+        from it, and calling its edges "the robot at the border" would
+        mislead. A uniform background (masks) has no range: never flat.
+    """
+    hi = float(np.max(values))
+    if background_peak > 0 and hi <= black_fraction * background_peak:
+        return "all-black frame"
+    lo = float(np.min(values))
+    if background_range > 0 and hi - lo <= flat_fraction * background_range:
+        return f"blank frame (every pixel about {0.5 * (hi + lo):.4g} gray levels): no picture of the scene"
+    return None
+
+
 def _estimate(model: EigenBackground, f: np.ndarray) -> np.ndarray:
     # mean + B^T B (f - mean), with B mean precomputed: two passes over B.
     coeffs = model.basis @ f
@@ -281,11 +312,13 @@ def difference_image(
     Raises
     ------
     FrameError
-        The frame's size differs from the model's, or the frame is all black.
+        The frame's size differs from the model's, or it holds no picture
+        (:func:`no_picture`: all black, or one flat level).
     """
     f = _frame_vector(model, frame, camera_name)
-    if float(f.max()) <= black_fraction * model._peak:
-        raise FrameError("all-black frame", camera_name)
+    why = no_picture(f, model._peak, model._range, black_fraction)
+    if why:
+        raise FrameError(why, camera_name)
     diff = _estimate(model, f)
     np.subtract(f, diff, out=diff)
     if blur_sigma_px > 0:

@@ -46,7 +46,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import median_filter
 
-from .background import to_gray
+from .background import no_picture, to_gray
 from .errors import FrameError
 
 try:  # compiled per-pixel loops (optional; the NumPy code below gives the same results)
@@ -151,8 +151,9 @@ class ViewModel:
         Tube radii in the image where the robot is seen (px): at the base, or
         where the insertion axis enters the image when the base is out of
         view (``width_at`` says which).
-    peak : float
-        Brightest gray level of the mean background (all-black check).
+    peak, background_range : float
+        Brightest gray level of the mean background and its spread (max -
+        min), for :func:`recon.background.no_picture`.
     """
 
     name: str
@@ -176,6 +177,7 @@ class ViewModel:
     outer_radius_px: float
     inner_radius_px: float
     peak: float
+    background_range: float = 0.0
     shift_index: np.ndarray = None
     shift_design: np.ndarray = None
     shift_gram: np.ndarray = None
@@ -320,6 +322,7 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
         coarse_stack=np.ascontiguousarray(stack[_central_pixels(H, W, factor)]),
         base_px=base_uv[0], axis_px=axis_px, outer_radius_px=outer_radius_mm / mm_px,
         inner_radius_px=inner_radius_mm / mm_px, peak=float(eigen.mean.max()),
+        background_range=float(eigen.mean.max() - eigen.mean.min()),
         start_px=start_px, start_search_px=start_search,
         width_at="at the robot base" if np.array_equal(seen_at, np.asarray(base_world_mm, float)) else "where the robot enters the image",
     )
@@ -532,17 +535,18 @@ def frame_coefficients(model: ViewModel, frame: np.ndarray) -> np.ndarray:
     Raises
     ------
     FrameError
-        An all-black frame.
+        A frame with no picture (:func:`recon.background.no_picture`, on the
+        sampled pixels: all black, or one flat level).
     """
+    samples = np.take(frame.reshape(-1), model.sample_index)
+    why = no_picture(samples, model.peak, model.background_range)
+    if why:
+        raise FrameError(why, model.name)
     if USE_NUMBA:
-        c, fmax = frame_coefficients_nb(frame.reshape(-1), model.sample_index, model.sample_mean, model.sample_basis_t,
-                                        model.sample_gram + np.diag(model.sample_prior), model.sample_threshold)
-        if fmax <= 0.01 * model.peak and model.peak > 0:  # (never with a black background: a mask without the robot is no camera fault)
-            raise FrameError("all-black frame", model.name)
+        c, _ = frame_coefficients_nb(frame.reshape(-1), model.sample_index, model.sample_mean, model.sample_basis_t,
+                                     model.sample_gram + np.diag(model.sample_prior), model.sample_threshold)
         return np.concatenate([[1.0], c]).astype(np.float32)
-    fs = np.take(frame.reshape(-1), model.sample_index).sum(axis=1, dtype=np.float64) * 0.25
-    if float(fs.max()) <= 0.01 * model.peak and model.peak > 0:
-        raise FrameError("all-black frame", model.name)
+    fs = samples.sum(axis=1, dtype=np.float64) * 0.25
     r = fs - model.sample_mean
     Bt = model.sample_basis_t
     rhs = Bt.T @ r
@@ -1542,7 +1546,15 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
     sb, p_end, t_end, r_end = _end_of(fitter, coef, s, good, d, width)
     start = (p_end, t_end, sb)
     for round_ in range(_MAX_FOLLOWS):
-        more = _follow_tube(model, frame, coeff, *start, **follow)
+        try:
+            more = _follow_tube(model, frame, coeff, *start, **follow)
+        except FrameError:
+            if round_ == 0 or start[2] <= sb:
+                raise
+            # A round that goes on from beyond a tip the tip stage found (not from the tube itself) and runs
+            # into the border followed backdrop (seen: a dark line from 10 px past the tip to the border):
+            # the robot in view ends at that tip.
+            break
         # What that finds within a diameter and 2 px is the end cap, which the tip stage measures and the
         # end-cap rule below drops anyway; only a longer stretch is added, and the centres refitted.
         added = more is not None and more.s[-1] > sb + 2.0 * r_end + 2.0

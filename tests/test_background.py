@@ -7,6 +7,7 @@ from recon.background import (
     background_estimate,
     difference_image,
     fit_eigenbackground,
+    no_picture,
 )
 from recon.errors import FrameError
 
@@ -91,6 +92,15 @@ def test_all_black_frame():
     model = fit_eigenbackground(frames(np.random.default_rng(7)))
     with pytest.raises(FrameError, match=r"^top: all-black frame$"):
         difference_image(model, np.zeros((H, W), np.uint8), "top")
+
+
+@pytest.mark.parametrize("level", [255.0, 128.0])
+def test_blank_frame(level):
+    # A saturated or flat picture is named as such, not taken for a robot that fills the view.
+    model = fit_eigenbackground(frames(np.random.default_rng(7)))
+    with pytest.raises(FrameError, match=rf"^top: blank frame \(every pixel about {level:.0f} gray levels\)"):
+        difference_image(model, np.full((H, W), level, np.uint8), "top")
+    assert no_picture(np.array([0.0, 0.0]), 0.0, 0.0) is None  # a black mask background: no camera fault
 
 
 def test_static_scene_drops_null_directions():

@@ -164,6 +164,8 @@ def test_frame_without_robot_fails_clearly(paper_scene, paper_frames, paper_twin
         rec({"side": empty["side"]})
     with pytest.raises(FrameError, match=r"^side: all-black frame$"):
         rec({"side": np.zeros_like(empty["side"]), "top": empty["top"]})
+    with pytest.raises(FrameError, match=r"^side: blank frame \(every pixel about 255 gray levels\)"):
+        rec({"side": np.full_like(empty["side"], 255), "top": empty["top"]})
     with pytest.raises(FrameError, match=r"^side: frame is 512x384"):
         rec({"side": empty["side"][::2, ::2], "top": empty["top"]})
 

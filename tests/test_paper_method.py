@@ -194,6 +194,8 @@ def test_bad_frames(setup):
         reconstruct_paper(model, {"side": good[::2, ::2], "top": good}, params)
     with pytest.raises(FrameError, match=r"^side: all-black frame$"):
         reconstruct_paper(model, {"side": np.zeros_like(good), "top": good}, params)
+    with pytest.raises(FrameError, match=r"^side: blank frame \(every pixel about 255 gray levels\)"):
+        reconstruct_paper(model, {"side": np.full_like(good, 255), "top": good}, params)
 
 
 def test_prepare_needs_background_frames():
