@@ -50,6 +50,7 @@ import cv2
 import numpy as np
 import yaml
 
+from .calibration_check import CalibrationError, camera_matrix_problem, rotation_problem
 from .camera import Camera, invert_transform
 from .distortion import as_coefficients, model_size
 from .rigcal import RigCalibration
@@ -87,21 +88,24 @@ def _row(dist) -> np.ndarray:
 
 
 def _check_K(K, source: str, key: str) -> np.ndarray:
+    """``K`` as a float64 camera matrix; CalibrationError naming ``source`` and ``key`` otherwise
+    (:func:`recon.calibration_check.camera_matrix_problem`)."""
     K = np.asarray(K, np.float64)
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0 or abs(K[2, 2] - 1) > 1e-9:
-        raise ValueError(f"{source}: {key}: not a camera matrix (3x3 with positive focal lengths and K[2,2] = 1), got {K.tolist()}")
+    why = camera_matrix_problem(K)
+    if why:
+        raise CalibrationError(f"{source}: {key}: {why}")
     return K
 
 
 def _check_T(T, source: str, key: str) -> np.ndarray:
+    """``T`` (4x4, or 3x4 without its last row) as a float64 rigid transform; CalibrationError naming
+    ``source`` and ``key`` otherwise (:func:`recon.calibration_check.rotation_problem`)."""
     T = np.asarray(T, np.float64)
     if T.shape == (3, 4):
         T = np.vstack([T, [0, 0, 0, 1]])
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise ValueError(f"{source}: {key}: must be a 4x4 transform, got shape {T.shape}")
-    R = T[:3, :3]
-    if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or abs(np.linalg.det(R) - 1) > 1e-6 or np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-12:
-        raise ValueError(f"{source}: {key}: not a rigid transform (rotation not orthonormal or last row not 0 0 0 1)")
+    why = rotation_problem(T)
+    if why:
+        raise CalibrationError(f"{source}: {key}: {why}")
     return T
 
 

@@ -13,8 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from recon.calibration_check import distortion_problem, field_of_view_problem, principal_point_problem
 from recon.camera import Camera, look_at, rotation_matrix
 from recon.distortion import MODEL_SIZES
+from recon.memory import check_memory, render_bytes
 from recon.rigcal import RigCalibration
 
 from .robot import Joints, Robot, Tube
@@ -24,7 +26,8 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["Scene", "SceneError", "load_scene", "read_toml", "scene_from_dict", "NoiseModel", "SetDressing", "Light"]
+__all__ = ["Scene", "SceneError", "load_scene", "check_scene_cameras", "read_toml", "scene_from_dict", "NoiseModel",
+           "SetDressing", "Light"]
 
 
 class SceneError(ValueError):
@@ -59,6 +62,9 @@ class _Table:
         if kind is float:
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 self.fail(key, f"must be a number, got {value!r}")
+            # TOML has inf and nan literals: a length of inf renders and then overflows the methods.
+            if not _finite_number(value):
+                self.fail(key, f"must be finite (and within +-{_MAX_MAGNITUDE:g}), got {value!r}")
             value = float(value)
         elif kind is int:
             if isinstance(value, bool) or not isinstance(value, int):
@@ -77,6 +83,8 @@ class _Table:
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
             ):
                 self.fail(key, f"must be a list of {n if n is not None else 'some'} numbers, got {value!r}")
+            if not all(_finite_number(v) for v in value):
+                self.fail(key, f"must be finite (and within +-{_MAX_MAGNITUDE:g}), got {value!r}")
             value = [float(v) for v in value]
         if check is not None and not check(value):
             self.fail(key, f"{why}, got {value!r}")
@@ -103,9 +111,21 @@ class _Table:
             self.fail(unknown[0], "unknown key")
 
 
+#: Largest magnitude of a scene number (mm, px, ...): far beyond any rig, and small enough that
+#: the squares and products of geometry (norms, projections) cannot overflow.
+_MAX_MAGNITUDE = 1e12
+
+
+def _finite_number(value) -> bool:
+    """Whether the number ``value`` (int or float) is finite and within :data:`_MAX_MAGNITUDE`."""
+    return abs(value) <= _MAX_MAGNITUDE  # False for NaN and inf (and no float conversion of big ints)
+
+
 _REQUIRED = object()
 _POS = (lambda v: v > 0, "must be > 0")
 _NONNEG = (lambda v: v >= 0, "must be >= 0")
+# A camera at ~0 mm from its target has no line of sight (look_at would divide by ~0).
+_AWAY = (lambda v: v >= 1.0, "must be > 0 (at least 1 mm from the target)")
 
 
 # ----------------------------------------------------------------------------- scene parts
@@ -342,7 +362,7 @@ def _orbited_mount(name: str, target: np.ndarray, distance_mm: float, orbit_deg)
 
 
 def _parse_rig(g: _Table, width: int, height: int, base, axis) -> RigCalibration:
-    distance = g.get("distance_mm", 300.0, float, *_POS)
+    distance = g.get("distance_mm", 300.0, float, *_AWAY)
     focal = g.get("focal_length_mm", 12.0, float, *_POS)
     pixel = g.get("pixel_size_um", 4.65, float, *_POS)
     target = np.asarray(g.get("target_mm", [45.0, 0.0, 0.0], ("vec", 3)))
@@ -356,7 +376,7 @@ def _parse_rig(g: _Table, width: int, height: int, base, axis) -> RigCalibration
     cams = {}
     for name, (eye, down) in nominal.items():
         c = g.table(name)
-        cam_distance = c.get("distance_mm", distance, float, *_POS)
+        cam_distance = c.get("distance_mm", distance, float, *_AWAY)
         orbit = c.get("orbit_deg", [0.0, 0.0, 0.0], ("vec", 3), lambda v: all(abs(a) <= 180 for a in v), "must be within [-180, 180] deg")
         cam_focal = c.get("focal_length_mm", focal, float, *_POS)
         if cam_distance != distance or any(orbit):
@@ -449,13 +469,17 @@ def _parse_noise(n: _Table) -> NoiseModel:
     return NoiseModel(**kw)
 
 
+#: Most frames of one step, and background frames, of a scene: the joint list is built in memory.
+_MAX_FRAMES = 1_000_000
+
+
 def _parse_sequence(s: _Table, robot: Robot) -> tuple:
     n_tubes = robot.n_tubes
-    bg = s.get("background_frames", 30, int, lambda v: v >= 0, "must be >= 0")
+    bg = s.get("background_frames", 30, int, lambda v: 0 <= v <= _MAX_FRAMES, f"must be in [0, {_MAX_FRAMES}]")
     dt = s.get("frame_interval_s", 1.0, float, *_POS)
     joints = []
     for st in s.tables("steps"):
-        frames = st.get("frames", _REQUIRED, int, lambda v: v >= 1, "must be >= 1")
+        frames = st.get("frames", _REQUIRED, int, lambda v: 1 <= v <= _MAX_FRAMES, f"must be in [1, {_MAX_FRAMES}]")
         ends = {}
         for key in ("extension_mm", "rotation_deg"):
             a = st.get(f"{key}_from", _REQUIRED, ("vec", n_tubes))
@@ -502,6 +526,7 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     if image_kind == "masks" and color != "mono":
         image.fail("color", 'must be "mono" when image.kind is "masks" (masks are single-channel)')
     image.done()
+    check_memory(render_bytes(width, height), f"{source}: image", f"rendering two {width}x{height} px views", SceneError)
     robot, model, base, axis = _parse_robot(top.table("robot", required=True), source)
     rig = _parse_rig(top.table("rig"), width, height, base, axis)
     lighting = top.table("lighting")
@@ -549,8 +574,36 @@ def read_toml(path, what: str, error=SceneError) -> dict:
         raise error(f"{path}: not valid TOML ({exc})") from None
 
 
+#: The lens checks of a scene camera and the key each one's problem is blamed on (the focal
+#: lengths are > 0 and the rotations rigid by construction).
+_CAMERA_CHECKS = (
+    (lambda cam: principal_point_problem(cam.K, cam.width, cam.height), "principal_offset_px"),
+    (field_of_view_problem, "focal_length_mm"),
+    (distortion_problem, "distortion"),
+)
+
+
+def check_scene_cameras(scene: Scene) -> None:
+    """Refuse a scene whose cameras :mod:`recon.calibration_check` refuses.
+
+    A principal point outside the image, focal lengths that do not fit it, or a lens model
+    that folds the image over or is stronger than any lens
+    (:func:`recon.calibration_check.distortion_problem`) is a :class:`SceneError` naming
+    ``rig.<camera>.<key>``. Not part of :func:`scene_from_dict`: the scene generator builds
+    scenes with provisional focal lengths, and folds, before it fits them.
+    """
+    for name, cam in scene.rig.cameras.items():
+        for check, key in _CAMERA_CHECKS:
+            why = check(cam)
+            if why:
+                raise SceneError(f"{scene.source}: rig.{name}.{key}: {why}")
+
+
 def load_scene(path) -> Scene:
-    """Load and validate a scene TOML file; every error names the file and the key."""
+    """Load and validate a scene TOML file (:func:`scene_from_dict`, :func:`check_scene_cameras`);
+    every error names the file and the key."""
     path = Path(path)
     data = read_toml(path, "scene file", SceneError)
-    return scene_from_dict(data, source=str(path))
+    scene = scene_from_dict(data, source=str(path))
+    check_scene_cameras(scene)
+    return scene
