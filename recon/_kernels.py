@@ -285,7 +285,7 @@ def bfs_path_nb(mask, sy, sx):
 def rays_nb(uv, K, d, m_inv, R, baseline, e1, e2, epipole, iterations):
     """Pixels -> unnormalized world ray directions, epipolar angles and conditioning, in one pass.
 
-    Same as :func:`recon.distortion.undistort_normalized` with ``iterations`` fixed-point steps
+    Same as :func:`recon.distortion.undistort_normalized` with at most ``iterations`` fixed-point steps
     (``d``: the 14 coefficients, ``m_inv``: the inverse tilt matrix) + ``R @ [x, y, 1]`` +
     :meth:`EpipolarFrame.phi` + :func:`recon.epipolar.conditioning` (tangent by central differences).
     """
@@ -298,7 +298,14 @@ def rays_nb(uv, K, d, m_inv, R, baseline, e1, e2, epipole, iterations):
         x = x0
         y = y0
         for _ in range(iterations):
-            x, y = _undistort_step_nb(x, y, x0, y0, d)
+            xn, yn = _undistort_step_nb(x, y, x0, y0, d)
+            moved = abs(xn - x) + abs(yn - y)
+            x = xn
+            y = yn
+            if not moved > 1e-14:  # as undistort_normalized's eps (NaN stops too)
+                break
+        else:
+            x = y = np.nan  # not settled: the caller solves such points in Python (distortion's Newton steps)
         xy[i, 0] = x
         xy[i, 1] = y
     dirs = np.empty((n, 3))

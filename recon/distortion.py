@@ -172,14 +172,15 @@ def undistort_normalized(xy_d: np.ndarray, dist, max_iterations: int = 100, eps:
     Returns
     -------
     (n, 2) array
-        Ideal normalized coordinates. Where the iteration does not settle (strong
-        distortion far outside the calibrated field) the last estimate is returned,
-        as OpenCV does.
+        Ideal normalized coordinates. Where the fixed-point iteration (OpenCV's)
+        does not settle (strong pincushion toward the corners), damped Newton steps
+        on the distortion solve it (:func:`_newton_undistort`); where the lens folds
+        (no solution nearby) the closest point they reach is returned.
     """
     d = padded(dist)
     if not np.any(d):
         return np.array(xy_d, dtype=np.float64, copy=True)
-    _, m_inv = tilt_matrix(float(d[12]), float(d[13]))
+    m, m_inv = tilt_matrix(float(d[12]), float(d[13]))
     x0, y0 = untilt_xy(xy_d[:, 0], xy_d[:, 1], d, m_inv)
     x, y = x0, y0
     for _ in range(max_iterations):
@@ -188,4 +189,50 @@ def undistort_normalized(xy_d: np.ndarray, dist, max_iterations: int = 100, eps:
         x, y = xn, yn
         if not moved > eps:
             break
-    return np.stack([x, y], axis=1)
+    xu = np.stack([x, y], axis=1)
+    # The fixed point diverges where the lens magnifies strongly (pincushion, k1..k3 > 0, toward the corners
+    # of a wide field: seen 9,000 px off on a wide-suite camera): there, Newton steps on the distortion itself.
+    xt, yt = distort_xy(xu[:, 0], xu[:, 1], d, m)
+    bad = ~(np.abs(xt - xy_d[:, 0]) + np.abs(yt - xy_d[:, 1]) <= _SOLVED)
+    if bad.any():
+        xu[bad] = _newton_undistort(np.asarray(xy_d, np.float64)[bad], d, m)
+    return xu
+
+
+#: Residual (normalized units, ~1e-7 px at f = 1000 px) below which an undistorted point counts as solved.
+_SOLVED = 1e-10
+
+
+def _newton_undistort(xy_d: np.ndarray, d, m, steps: int = 60) -> np.ndarray:
+    """Ideal normalized points (n, 2) whose distortion is ``xy_d`` (n, 2): damped Newton steps on
+    :func:`distort_xy` from ``xy_d`` itself, the Jacobian by central differences, each step halved until
+    the residual falls. A point with no solution nearby (the lens folds there) ends where the residual
+    stops falling."""
+    x = xy_d.copy()
+    h = 1e-7
+
+    def residual(p):
+        xd, yd = distort_xy(p[:, 0], p[:, 1], d, m)
+        return np.stack([xd, yd], axis=1) - xy_d
+
+    r = residual(x)
+    for _ in range(steps):
+        jx = (residual(x + [h, 0.0]) - residual(x - [h, 0.0])) / (2 * h)
+        jy = (residual(x + [0.0, h]) - residual(x - [0.0, h])) / (2 * h)
+        det = jx[:, 0] * jy[:, 1] - jy[:, 0] * jx[:, 1]
+        det = np.where(np.abs(det) > 1e-300, det, 1e-300)
+        step = -np.stack([jy[:, 1] * r[:, 0] - jy[:, 0] * r[:, 1], -jx[:, 1] * r[:, 0] + jx[:, 0] * r[:, 1]], axis=1) / det[:, None]
+        norm = np.linalg.norm(r, axis=1)
+        scale = np.ones(len(x))
+        for _ in range(30):  # backtracking: halve the steps that do not lower the residual
+            trial = x + scale[:, None] * step
+            rt = residual(trial)
+            worse = ~(np.linalg.norm(rt, axis=1) < norm) & (norm > 0)
+            if not worse.any():
+                break
+            scale[worse] *= 0.5
+        better = np.linalg.norm(rt, axis=1) < norm
+        x[better], r[better] = trial[better], rt[better]
+        if not (np.abs(r).sum(axis=1) > 1e-15).any() or not better.any():
+            break
+    return x

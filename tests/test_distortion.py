@@ -89,6 +89,26 @@ def test_kernels_match_the_camera(n):
     assert np.abs(dirs - (xy @ R[:, :2].T + R[:, 2])).max() < 1e-9
 
 
+def test_strong_pincushion_is_undistorted_to_the_corners():
+    # A wide-suite camera (wide-2-61, side): OpenCV's fixed point diverges toward its corners (9,000 px
+    # off); Newton steps solve it, and the rays kernel hands such pixels back (NaN) rather than a wrong ray.
+    from recon._kernels import rays_nb
+
+    Kw = np.array([[764.84058, 0.0, 1230.5], [0.0, 764.84058, 967.95], [0.0, 0.0, 1.0]])
+    cam = Camera("side", 2448, 2048, Kw, np.array([0.0742, 0.0908, -0.00003, 0.00026, 0.0395]), np.eye(4))
+    u, v = np.meshgrid(np.linspace(0, 2447, 49), np.linspace(0, 2047, 41))
+    uv = np.stack([u.ravel(), v.ravel()], axis=1)
+    xy_d = (uv - Kw[:2, 2]) / Kw[0, 0]
+    solved = np.stack(distortion.distort_xy(*cam.pixels_to_normalized(uv).T, cam.dist14, cam.tilt[0]), axis=1)
+    assert np.abs(solved - xy_d).max() * Kw[0, 0] < 1e-6
+    dirs = rays_nb(uv, cam.K, cam.dist14, cam.tilt[1], np.eye(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
+                   np.array([0, 0, 1.0]), np.array([0, 0, 1.0]), 100)[0]
+    unsolved = ~np.isfinite(dirs).all(axis=1)
+    assert 0 < unsolved.mean() < 0.5  # the corners, not the middle
+    xy = cam.pixels_to_normalized(uv[~unsolved])
+    assert np.abs(dirs[~unsolved, :2] / dirs[~unsolved, 2:] - xy).max() < 1e-9
+
+
 def test_carving_projection_matches_the_camera():
     """The paper method's float32 projection (recon.carving) lands every point in the camera's pixel."""
     from recon.carving import _pixel_index, _View
