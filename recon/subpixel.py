@@ -1492,6 +1492,85 @@ def _edge_limits(model: ViewModel, params) -> tuple:
     return rmax, nav, thr, thr_px, wmin, 2.0 * rmax, strong
 
 
+@dataclass(eq=False)
+class _Fit:
+    """The profiles' curve parameters ``s``, centres ``c`` (px) and accepted ``ok``, with their robust spline fit."""
+
+    s: np.ndarray
+    c: np.ndarray
+    ok: np.ndarray
+    fitter: object
+    coef: np.ndarray
+    d: np.ndarray
+    width: np.ndarray
+
+    def end(self) -> tuple:
+        """:func:`_end_of` the fit: curve parameter, position, unit tangent and half-width (px) at its last centre."""
+        return _end_of(self.fitter, self.coef, self.s, np.flatnonzero(self.ok), self.d, self.width)
+
+    def add(self, prof, more, params, widths) -> None:
+        """Merge the followed profiles ``more`` and refit (``widths``: the accepted (min, max), px)."""
+        self.s, self.c, self.ok = _merge_profiles(prof, self.s, self.c, self.ok, more)
+        self.fitter, self.coef, self.ok, self.d, self.width = _fit_centres(self.s, self.c, self.ok, prof, params, *widths)
+
+
+def _follow_options(model: ViewModel, params, visited: np.ndarray, follow_min_dn, bridge_gaps: bool) -> dict:
+    """:func:`_follow_tube`'s keyword arguments for a view (see :func:`extract_view` for the second tries'
+    ``follow_min_dn`` and ``bridge_gaps``); ``visited`` (m, 2) px: the centres found so far."""
+    rmax, nav, thr, thr_px, wmin, wmax, strong = _edge_limits(model, params)
+    gap_px = 2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0) if bridge_gaps else 0.0
+    if follow_min_dn is not None:
+        # More sensitive; callers then bridge no gaps: at this threshold a stretch of backdrop texture beyond
+        # a gap passes for a tube often enough (seen: two hits 50 px on, 20 px off the tube).
+        _, _, thr, thr_px, *_ = _edge_limits(model, replace(params, edge_min_dn=min(follow_min_dn, params.edge_min_dn)))
+    return dict(half=int(np.ceil(rmax * 1.45 + 4)), threshold=thr, wmin=wmin, wmax=wmax, step=params.profile_step_px,
+                tolerance=model.inner_radius_px, max_gap_px=gap_px, nav=nav, threshold1=thr_px, strong=strong,
+                energy=bool(getattr(params, "follow_energy", False)), visited=visited)
+
+
+def _follow_rounds(model, frame, coeff, prof, fit: _Fit, follow: dict, params, widths, lap) -> float:
+    """Follow the tube beyond ``fit``'s last centre and locate its tip, in up to :data:`_MAX_FOLLOWS` rounds
+    (``fit`` grows in place); returns the tip's distance (px) along the end tangent beyond the last centre
+    (NaN where the tip stage found none)."""
+    sb, p_end, t_end, r_end = fit.end()
+    start, end_t = (p_end, t_end, sb), np.nan
+    for round_ in range(_MAX_FOLLOWS):
+        try:
+            more = _follow_tube(model, frame, coeff, *start, **follow)
+        except FrameError:
+            if round_ == 0 or start[2] <= sb:
+                raise
+            # A round that goes on from beyond a tip the tip stage found (not from the tube itself) and runs
+            # into the border followed backdrop (seen: a dark line from 10 px past the tip to the border):
+            # the robot in view ends at that tip.
+            break
+        # What that finds within a diameter and 2 px is the end cap, which the tip stage measures and the
+        # end-cap rule in extract_view drops anyway; only a longer stretch is added, and the centres refitted.
+        added = more is not None and more.s[-1] > sb + 2.0 * r_end + 2.0
+        if round_ > 0 and not added:
+            break
+        if added:
+            fit.add(prof, more, params, widths)
+            sb, p_end, t_end, r_end = fit.end()
+        lap("follow")
+        # Tip, along the axis from the last accepted centre.
+        end_t = _tip_along_axis(model, frame, coeff, p_end, t_end, r_end, follow["threshold1"])
+        lap("tip")
+        # Where the tip stage walks on well beyond the profiles (lines along the axis see a tube whose edges
+        # faded across a stretch of backdrop, or the step to a thinner tube whose core alone stands out),
+        # the tube may go on: follow it again from there.
+        if np.isfinite(end_t) and end_t > 2.0 * r_end + 3.0:
+            start = (p_end + end_t * t_end, t_end, sb + end_t)
+        elif added:
+            # The follower predicts its axis from its last few centres; across textured backdrop they can
+            # wander and the prediction leaves a bending tube. The refitted spline's end tangent is steadier:
+            # go on from there (seen: 120 px of a tube left beyond such a stop).
+            start = (p_end, t_end, sb)
+        else:
+            break
+    return end_t
+
+
 def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings: dict | None = None,
                  follow_min_dn: float | None = None, bridge_gaps: bool = True) -> ViewCenterline:
     """Coarse path, fine profiles, spline, tip: the sub-pixel centerline of one view.
@@ -1535,52 +1614,11 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
     lap("fit")
     # The coarse path can stop short of the tip (a tube only a coarse pixel or two wide can drop out of the
     # coarse mask): follow the tube's edges at full resolution beyond the last accepted centre.
-    gap_px = 2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0) if bridge_gaps else 0.0
-    if follow_min_dn is not None:
-        # More sensitive; callers then bridge no gaps: at this threshold a stretch of backdrop texture beyond
-        # a gap passes for a tube often enough (seen: two hits 50 px on, 20 px off the tube).
-        _, _, thr, thr_px, *_ = _edge_limits(model, replace(params, edge_min_dn=min(follow_min_dn, params.edge_min_dn)))
-    follow = dict(half=int(np.ceil(rmax * 1.45 + 4)), threshold=thr, wmin=wmin, wmax=wmax, step=params.profile_step_px,
-                  tolerance=model.inner_radius_px, max_gap_px=gap_px,
-                  nav=nav, threshold1=thr_px, strong=strong, energy=bool(getattr(params, "follow_energy", False)), visited=c[good])
-    sb, p_end, t_end, r_end = _end_of(fitter, coef, s, good, d, width)
-    start = (p_end, t_end, sb)
-    for round_ in range(_MAX_FOLLOWS):
-        try:
-            more = _follow_tube(model, frame, coeff, *start, **follow)
-        except FrameError:
-            if round_ == 0 or start[2] <= sb:
-                raise
-            # A round that goes on from beyond a tip the tip stage found (not from the tube itself) and runs
-            # into the border followed backdrop (seen: a dark line from 10 px past the tip to the border):
-            # the robot in view ends at that tip.
-            break
-        # What that finds within a diameter and 2 px is the end cap, which the tip stage measures and the
-        # end-cap rule below drops anyway; only a longer stretch is added, and the centres refitted.
-        added = more is not None and more.s[-1] > sb + 2.0 * r_end + 2.0
-        if round_ > 0 and not added:
-            break
-        if added:
-            s, c, ok = _merge_profiles(prof, s, c, ok, more)
-            fitter, coef, ok, d, width = _fit_centres(s, c, ok, prof, params, wmin, wmax)
-            good = np.flatnonzero(ok)
-            sb, p_end, t_end, r_end = _end_of(fitter, coef, s, good, d, width)
-        lap("follow")
-        # Tip, along the axis from the last accepted centre.
-        end_t = _tip_along_axis(model, frame, coeff, p_end, t_end, r_end, thr_px)
-        lap("tip")
-        # Where the tip stage walks on well beyond the profiles (lines along the axis see a tube whose edges
-        # faded across a stretch of backdrop, or the step to a thinner tube whose core alone stands out),
-        # the tube may go on: follow it again from there.
-        if np.isfinite(end_t) and end_t > 2.0 * r_end + 3.0:
-            start = (p_end + end_t * t_end, t_end, sb + end_t)
-        elif added:
-            # The follower predicts its axis from its last few centres; across textured backdrop they can
-            # wander and the prediction leaves a bending tube. The refitted spline's end tangent is steadier:
-            # go on from there (seen: 120 px of a tube left beyond such a stop).
-            start = (p_end, t_end, sb)
-        else:
-            break
+    follow = _follow_options(model, params, c[good], follow_min_dn, bridge_gaps)
+    fit = _Fit(s, c, ok, fitter, coef, d, width)
+    end_t = _follow_rounds(model, frame, coeff, prof, fit, follow, params, (wmin, wmax), lap)
+    s, c, ok, fitter, coef, d, width = fit.s, fit.c, fit.ok, fit.fitter, fit.coef, fit.d, fit.width
+    sb, p_end, t_end, r_end = fit.end()
     if not np.isfinite(end_t):
         end_t = 0.0
     # Profiles within about a radius of the silhouette's end are cut by the end cap.
