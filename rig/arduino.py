@@ -14,6 +14,16 @@ Two layers, kept apart as in pyserial's own design:
   connected (the firmware stops the motors when it has not heard a valid
   frame for 100 ms), and bounds every command by a timeout with retries.
   Errors are one-line exceptions naming the port and the command.
+* **link clock** -- :class:`LinkClock`: the time base of the timeouts.  A
+  real controller (``/dev/ttyACM0``, ``socket://``) runs in real time and so
+  does the driver: :class:`LinkClock` is ``time.monotonic()``.  The emulator
+  (``rig/sim``) runs the firmware in *simulated* time, which drifts from the
+  wall clock whenever the OS does not schedule the emulator or this process
+  on time.  For a pty served by ``ctr_sim`` the driver therefore attaches an
+  :class:`EmulatorClock`: every heartbeat also leases the emulator a bounded
+  amount of simulated time (so a host thread that runs late freezes the
+  simulation instead of tripping the firmware's 100 ms link watchdog), and
+  the command / homing / settle timeouts are counted in simulated time.
 """
 
 from __future__ import annotations
@@ -22,6 +32,9 @@ import itertools
 import re
 import logging
 import math
+import os
+import socket
+import stat
 import threading
 import time
 from dataclasses import dataclass, field
@@ -48,6 +61,8 @@ __all__ = [
     "Status",
     "Protocol",
     "LineSplitter",
+    "LinkClock",
+    "EmulatorClock",
     "ArduinoActuator",
 ]
 
@@ -264,6 +279,206 @@ class LineSplitter:
 
 
 # ---------------------------------------------------------------------------
+# link clock
+# ---------------------------------------------------------------------------
+
+#: emulator clock: when the emulator's simulated time has not advanced for this
+#: long of wall-clock time although the emulator is not waiting for this host
+#: (it is stopped, e.g. SIGSTOP, or hung), waits count wall-clock time from
+#: then on, so that every wait stays bounded
+EMULATOR_STALL_S = 2.0
+#: abstract unix socket of ctr_sim's clock channel: "@ctr_sim:<pty path>"
+EMULATOR_SOCKET_PREFIX = "ctr_sim:"
+
+
+class LinkClock:
+    """Time base of a link, in seconds: the controller's time.
+
+    The base class is real time (``time.monotonic()``), the clock of a real
+    controller.  :meth:`wait` waits for an event at most ``timeout_s`` of link
+    time; :meth:`tick` is called by the heartbeat thread after each heartbeat
+    with the number of bytes written to the port so far.
+    """
+
+    emulated = False
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def wait(self, event: threading.Event, timeout_s: float) -> bool:
+        return event.wait(max(0.0, timeout_s))
+
+    def tick(self, bytes_written: int) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+    def describe(self) -> str:
+        return "real time"
+
+
+class EmulatorClock(LinkClock):
+    """Simulated time of a ``ctr_sim`` emulator, over its clock channel.
+
+    The channel is the abstract unix socket ``@ctr_sim:<pty>`` (SOCK_SEQPACKET)
+    that the emulator opens next to its pty; see ``rig/firmware/README.md``.
+
+    * :meth:`tick` sends a lease ``L <bytes written>``: the emulator may run
+      ``lease_s`` (50 ms) of simulated time past the moment it has read those
+      bytes -- the heartbeat just written among them.  So the firmware sees a
+      heartbeat at least every 50 ms of its own time, however late the OS runs
+      the heartbeat thread; the simulation waits for a late host instead.
+    * :meth:`now` is the emulator's simulated time (reported every 10 ms of it),
+      so timeouts mean the same to the host and to the firmware.  When the
+      emulator's time stands still although it is not waiting for this host,
+      wall-clock time beyond ``stall_s`` (:data:`EMULATOR_STALL_S`) counts too; when the
+      channel closes (emulator gone) the clock continues in wall-clock time.
+    """
+
+    emulated = True
+
+    def __init__(self, sock: socket.socket, port: str, pid: int, lease_s: float, sim_s: float):
+        self._sock = sock
+        self.port = port
+        self.pid = pid
+        self.lease_s = lease_s
+        self.stall_s = EMULATOR_STALL_S    # see EMULATOR_STALL_S
+        self._lock = threading.Lock()
+        self._sim_s = sim_s
+        self._offset_s = 0.0               # wall time counted while the emulator stood still
+        self._last_advance = time.monotonic()
+        self._waiting = False              # the emulator waits for our next lease
+        self._closed_at: float | None = None
+        self._closed_base = 0.0
+        self.leases = 0                    # leases sent
+        self.waits_seen = 0                # times the emulator waited for this host
+
+    @classmethod
+    def attach(cls, url: str, timeout_s: float = 3.0) -> "EmulatorClock | None":
+        """The clock channel of the emulator serving ``url``, or None when ``url``
+        is not a pty of a running ``ctr_sim`` (a real port, ``socket://``, an
+        emulator started with ``--no-sync``)."""
+        if "://" in url or not hasattr(socket, "AF_UNIX") or not hasattr(socket, "SOCK_SEQPACKET"):
+            return None
+        try:
+            path = os.path.realpath(url)
+            st = os.stat(path)
+        except OSError:
+            return None
+        if not stat.S_ISCHR(st.st_mode):
+            return None
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        try:
+            sock.connect("\0" + EMULATOR_SOCKET_PREFIX + path)
+        except OSError:
+            sock.close()
+            return None
+        try:
+            sock.settimeout(timeout_s)
+            hello = sock.recv(256).decode("ascii", "replace").split()
+            if len(hello) < 7 or hello[0] != "H":
+                raise ValueError(f"unexpected hello {hello!r}")
+            pid, dev, rdev, ino, lease_us, us = (int(x) for x in hello[1:7])
+            if (dev, rdev, ino) != (st.st_dev, st.st_rdev, st.st_ino):
+                raise ValueError(f"the emulator (pid {pid}) serves another pty than {path}")
+            sock.setblocking(False)
+        except (OSError, ValueError) as e:
+            sock.close()
+            log.warning("%s: emulator clock channel unusable (%s): using real time", url, e)
+            return None
+        return cls(sock, url, pid, lease_us / 1e6, us / 1e6)
+
+    # -- reports -----------------------------------------------------------
+    def _drain(self) -> None:
+        """Read the emulator's reports (caller holds the lock)."""
+        while self._closed_at is None:
+            try:
+                msg = self._sock.recv(128)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                msg = b""
+            if not msg:
+                self._close_locked()
+                return
+            parts = msg.split()
+            if len(parts) < 2 or not parts[1].isdigit():
+                continue
+            t = int(parts[1]) / 1e6
+            if parts[0] == b"T":
+                real = time.monotonic()
+                if not self._waiting:
+                    self._offset_s += max(0.0, real - self._last_advance - self.stall_s)
+                self._sim_s = max(self._sim_s, t)
+                self._last_advance = real
+                self._waiting = False
+            elif parts[0] == b"W":
+                self._sim_s = max(self._sim_s, t)
+                self._waiting = True
+                self.waits_seen += 1
+
+    def _now_locked(self) -> float:
+        real = time.monotonic()
+        if self._closed_at is not None:
+            return self._closed_base + (real - self._closed_at)
+        frozen = 0.0 if self._waiting else max(0.0, real - self._last_advance - self.stall_s)
+        return self._sim_s + self._offset_s + frozen
+
+    def _close_locked(self) -> None:
+        if self._closed_at is None:
+            self._closed_base = self._now_locked()
+            self._closed_at = time.monotonic()
+            try:
+                self._sock.close()
+            except OSError:         # pragma: no cover
+                pass
+
+    # -- LinkClock -----------------------------------------------------------
+    def now(self) -> float:
+        with self._lock:
+            self._drain()
+            return self._now_locked()
+
+    def wait(self, event: threading.Event, timeout_s: float) -> bool:
+        end = self.now() + timeout_s
+        while True:
+            left = end - self.now()
+            if left <= 0:
+                return event.is_set()
+            # simulated time runs at most at wall-clock speed (ctr_sim --speed 1):
+            # waiting ``left`` of wall time cannot overshoot by more than the 50 ms slice
+            if event.wait(min(left, 0.05)):
+                return True
+
+    def tick(self, bytes_written: int) -> None:
+        with self._lock:
+            if self._closed_at is not None:
+                return
+            try:
+                self._sock.send(b"L %d" % bytes_written, socket.MSG_DONTWAIT)
+                self.leases += 1
+            except (BlockingIOError, InterruptedError):
+                pass                # emulator not reading (stopped): it has leases queued
+            except OSError:
+                self._close_locked()
+                return
+            self._drain()
+
+    def close(self) -> None:
+        """Stop leasing: the emulator runs on in real time (as after a crash of this host)."""
+        with self._lock:
+            self._close_locked()
+
+    @property
+    def attached(self) -> bool:
+        return self._closed_at is None
+
+    def describe(self) -> str:
+        return f"emulator time (ctr_sim pid {self.pid}, lease {self.lease_s * 1e3:.0f} ms)"
+
+
+# ---------------------------------------------------------------------------
 # driver
 # ---------------------------------------------------------------------------
 
@@ -298,10 +513,17 @@ class ArduinoActuator(Actuator):
         how long the handshake waits for the controller (an Uno reboots when
         its port is opened: bootloader ~0.5-1.6 s).
     heartbeat_s:
-        heartbeat period; must stay well under the firmware's 100 ms link
-        watchdog.
+        heartbeat period (wall-clock time); must stay well under the
+        firmware's 100 ms link watchdog.
     tolerance:
         position tolerance of :meth:`wait_settled` (mm, deg).
+    clock:
+        time base of the timeouts above and of :meth:`home` /
+        :meth:`wait_settled`: ``"auto"`` (default) uses the emulator's
+        simulated time when ``url`` is a pty served by ``rig/sim/ctr_sim``
+        and real time otherwise; ``"real"`` always real time (the emulator
+        then runs free in real time, as a real Uno would); ``"emulator"``
+        requires the emulator's clock channel.  See :class:`EmulatorClock`.
     """
 
     def __init__(self, url: str, limits: SoftLimits | None = None, *,
@@ -311,8 +533,13 @@ class ArduinoActuator(Actuator):
                  ready_timeout_s: float = 3.0,
                  heartbeat_s: float = 0.02,
                  tolerance: JointValues = JointValues(0.05, 0.5),
+                 clock: str = "auto",
                  connect: bool = True):
         super().__init__(limits)
+        if clock not in ("auto", "real", "emulator"):
+            raise ValueError(f"clock must be 'auto', 'real' or 'emulator', got {clock!r}")
+        self.clock_mode = clock
+        self.clock: LinkClock = LinkClock()
         self.url = url
         self.port = url
         self.baudrate = baudrate
@@ -327,7 +554,8 @@ class ArduinoActuator(Actuator):
         self.watchdog_events = 0         # "$0,WDOG" frames received
         self.bad_frames = 0              # undecodable lines received
         self.async_errors: list[Frame] = []   # ERR frames with seq 0 (noise on the line)
-        self.max_heartbeat_gap_s = 0.0   # longest interval between two heartbeats sent
+        self.max_heartbeat_gap_s = 0.0   # longest interval between two heartbeats sent (link time)
+        self.bytes_written = 0           # bytes written to the port since it was opened
 
         self._ser: serial.SerialBase | None = None
         self._wlock = threading.Lock()
@@ -362,6 +590,16 @@ class ArduinoActuator(Actuator):
             self._ser.reset_input_buffer()
         except (serial.SerialException, OSError, AttributeError):
             pass
+        self.bytes_written = 0
+        clock = None
+        if self.clock_mode != "real":
+            clock = EmulatorClock.attach(self.url, self.ready_timeout_s)
+            if clock is None and self.clock_mode == "emulator":
+                self._ser.close()
+                self._ser = None
+                raise LinkError(f"{self.port}: clock='emulator' but no ctr_sim clock channel serves this port "
+                                f"(not an emulator pty, or ctr_sim --no-sync)")
+        self.clock = clock or LinkClock()
         self._closing.clear()
         self._link_error = None
         self._handshaken = False
@@ -369,14 +607,16 @@ class ArduinoActuator(Actuator):
         self._reader = threading.Thread(target=self._read_loop, name=f"arduino-rx {self.port}",
                                         daemon=True)
         self._reader.start()
+        # the heartbeat thread runs from the start: before the handshake it only
+        # leases the emulator its time (no HB is sent until the controller is ready)
+        self._heartbeat = threading.Thread(target=self._heartbeat_loop,
+                                           name=f"arduino-hb {self.port}", daemon=True)
+        self._heartbeat.start()
         try:
             self._handshake(self.ready_timeout_s)
         except BaseException:
             self.close()
             raise
-        self._heartbeat = threading.Thread(target=self._heartbeat_loop,
-                                           name=f"arduino-hb {self.port}", daemon=True)
-        self._heartbeat.start()
 
     def close(self) -> None:
         """Stop the threads and close the port.  No STOP is sent: the firmware's
@@ -388,6 +628,7 @@ class ArduinoActuator(Actuator):
             if t is not None and t is not threading.current_thread():
                 t.join(timeout=1.0)
         self._heartbeat = self._reader = None
+        self.clock.close()
         if self._ser is not None:
             try:
                 self._ser.close()
@@ -405,11 +646,12 @@ class ArduinoActuator(Actuator):
         probe when the port did not reset it), then push the soft limits."""
         self._ready.clear()
         self._booted.clear()
-        deadline = time.monotonic() + timeout_s
-        next_probe = time.monotonic() + 0.25
+        clock = self.clock
+        deadline = clock.now() + timeout_s
+        next_probe = clock.now() + 0.25
         while not self._booted.is_set():
             self._raise_link_error("handshake")
-            now = time.monotonic()
+            now = clock.now()
             if now >= deadline:
                 raise LinkError(f"{self.port}: handshake: no READY and no reply to VER "
                                 f"within {timeout_s:.1f}s (firmware flashed? right port/baud?)")
@@ -431,7 +673,8 @@ class ArduinoActuator(Actuator):
         self._last_status = Protocol.parse_stat(self._command("STAT", handshake=True), time.monotonic())
         self._handshaken = True
         self._ready.set()
-        log.info("%s: connected, firmware %s", self.port, self.firmware_version)
+        log.info("%s: connected, firmware %s, timeouts in %s", self.port, self.firmware_version,
+                 self.clock.describe())
 
     def _rehandshake(self, epoch: int) -> None:
         try:
@@ -530,28 +773,37 @@ class ArduinoActuator(Actuator):
                          name=f"arduino-rehandshake {self.port}", daemon=True).start()
 
     def _heartbeat_loop(self) -> None:
+        """Every ``heartbeat_s`` of wall-clock time: an ``HB`` (when connected and
+        not paused), then a tick of the link clock (the emulator's lease)."""
         period = self.heartbeat_s
+        clock = self.clock
         next_t = time.monotonic()
         last = None
-        while not self._closing.wait(max(0.0, next_t - time.monotonic())):
-            now = time.monotonic()
-            next_t += period
-            if next_t < now:
-                next_t = now + period
-            if self._hb_paused.is_set() or not self._ready.is_set() or self._link_error:
-                last = None
-                continue
-            if last is not None and now - last > self.max_heartbeat_gap_s:
-                self.max_heartbeat_gap_s = now - last
-                if now - last > 0.07:
-                    log.warning("%s: heartbeat delayed %.0f ms (the controller stops the motors "
-                                "after 100 ms without a frame)", self.port, (now - last) * 1e3)
-            last = now
-            try:
-                self._send("HB")
-            except LinkError:
-                return
-            self._expire_pending()
+        try:
+            while not self._closing.wait(max(0.0, next_t - time.monotonic())):
+                wall = time.monotonic()
+                next_t += period
+                if next_t < wall:
+                    next_t = wall + period
+                if self._hb_paused.is_set() or not self._ready.is_set() or self._link_error:
+                    last = None
+                else:
+                    now = clock.now()
+                    if last is not None and now - last > self.max_heartbeat_gap_s:
+                        self.max_heartbeat_gap_s = now - last
+                        if now - last > 0.07:
+                            log.warning("%s: heartbeat delayed %.0f ms (the controller stops the motors "
+                                        "after 100 ms without a frame)", self.port, (now - last) * 1e3)
+                    last = now
+                    self._send("HB")
+                    self._expire_pending()
+                clock.tick(self.bytes_written)
+        except LinkError:
+            pass
+        finally:
+            # a host that no longer sends heartbeats must not hold the emulator's time
+            if not self._closing.is_set():
+                clock.close()
 
     # -- request / reply -----------------------------------------------------
     def _next_seq(self) -> int:
@@ -577,6 +829,7 @@ class ArduinoActuator(Actuator):
                     self._pending.pop(seq, None)
                 self._link_error = LinkError(f"{self.port}: {cmd}: write failed: {e}")
                 raise self._link_error from None
+            self.bytes_written += len(data)
         return p
 
     def _expire_pending(self, max_age_s: float = 2.0) -> None:
@@ -613,7 +866,7 @@ class ArduinoActuator(Actuator):
         if not handshake:
             self._raise_link_error(cmd)
             self._check_reset()
-            if not self._ready.wait(self.ready_timeout_s):
+            if not self.clock.wait(self._ready, self.ready_timeout_s):
                 self._raise_link_error(cmd)
                 raise LinkError(f"{self.port}: {cmd}: controller not ready "
                                 f"(handshake pending for {self.ready_timeout_s:.1f}s)")
@@ -623,7 +876,7 @@ class ArduinoActuator(Actuator):
         for attempt in range(retries + 1):
             self._raise_link_error(cmd)
             p = self._send(cmd, *args)
-            if not p.event.wait(timeout_s):
+            if not self.clock.wait(p.event, timeout_s):
                 with self._plock:
                     self._pending.pop(next((s for s, q in self._pending.items() if q is p), -1), None)
                 last = f"no reply within {timeout_s * 1000:.0f} ms"
@@ -670,7 +923,8 @@ class ArduinoActuator(Actuator):
         angle becomes 0 deg.  Blocks until homed and settled at (0, 0)."""
         self._command("HOME")
         self._last_target = None
-        deadline = time.monotonic() + timeout_s
+        clock = self.clock
+        deadline = clock.now() + timeout_s
         while True:
             st = self.status()
             if st.home_failed:
@@ -682,11 +936,11 @@ class ArduinoActuator(Actuator):
                 # the stage overshoots the switch while braking: wait until
                 # the PID has brought both joints back to their zeros
                 self._last_target = JointValues(0.0, 0.0)
-                self.wait_settled(max(0.5, deadline - time.monotonic()))
+                self.wait_settled(max(0.5, deadline - clock.now()))
                 return
             if not st.homing:
                 raise ActuatorError(f"{self.port}: HOME: homing stopped before completion")
-            if time.monotonic() > deadline:
+            if clock.now() > deadline:
                 raise TimeoutError(f"{self.port}: HOME: joint insertion_mm did not reach its home "
                                    f"switch within {timeout_s:.1f}s (at {st.position.insertion_mm:.3f} mm)")
             time.sleep(0.02)
@@ -699,7 +953,8 @@ class ArduinoActuator(Actuator):
         if target is None:
             self._check_reset()
             raise ActuatorError(f"{self.port}: wait_settled: no target (call move_to or home first)")
-        deadline = time.monotonic() + timeout_s
+        clock = self.clock
+        deadline = clock.now() + timeout_s
         while True:
             st = self.status()
             if st.watchdog_tripped or not st.enabled:
@@ -719,7 +974,7 @@ class ArduinoActuator(Actuator):
                     bad.append(f"{name} at {getattr(st.position, name):.3f} (target {getattr(target, name):.3f})")
             if not bad:
                 return st.position
-            if time.monotonic() > deadline:
+            if clock.now() > deadline:
                 raise TimeoutError(f"{self.port}: wait_settled: joint {', '.join(bad)} "
                                    f"not settled within {timeout_s:.1f}s")
             time.sleep(0.01)
@@ -743,6 +998,7 @@ class ArduinoActuator(Actuator):
             raise LinkError(f"{self.port}: write_raw: port is closed")
         with self._wlock:
             ser.write(data)
+            self.bytes_written += len(data)
 
     def __repr__(self) -> str:
         return f"ArduinoActuator({self.port!r}, firmware={self.firmware_version!r})"

@@ -299,6 +299,13 @@ def test_same_sequence_on_arduino_emulator(files, twin_session, sim_factory, tmp
 
     summary = json.loads((out / "live" / "summary.json").read_text())
     assert summary["frames"] == len(EXPECTED) and summary["failed_frames"] < len(EXPECTED)
+    # the emulator's clock channel: how often it waited for a late host (ctr_sim's exit line)
+    h.close()
+    q = h.wait_event("Q", timeout_s=5)
+    stats = dict(f.split("=", 1) for f in q.fields if "=" in f)
+    _report("arduino-emulator clock channel", ", ".join(f"{k} {stats.get(k)}" for k in (
+        "leases", "lease_waits", "max_lease_wait_ms", "forced_leases", "max_lag_ms")))
+    assert int(stats["leases"]) > 0, "the driver did not lease the emulator's time (no clock channel)"
 
 
 # ============================================================================ opencv, replay, pair
@@ -412,12 +419,14 @@ class _SlowCamera(Camera):
 
 
 def test_camera_pair_skew_and_timeouts():
-    with CameraPair([_SlowCamera("side", 0.0), _SlowCamera("top", 0.03)]) as pair:
+    # The delay is long against the scheduling jitter of the two worker threads (tens of ms on a
+    # loaded machine: a 30 ms delay once measured 18 ms with two busy processes on two cores).
+    with CameraPair([_SlowCamera("side", 0.0), _SlowCamera("top", 0.25)]) as pair:
         skews = [pair.grab().skew_ms for _ in range(3)]
-    assert all(25.0 <= s <= 80.0 for s in skews), skews      # the 30 ms delay shows as skew
+    assert all(150.0 <= s <= 450.0 for s in skews), skews     # the 250 ms delay shows as skew
     with CameraPair([_SlowCamera("side", 0.0), _SlowCamera("top", 0.0)]) as pair:
         fp = pair.grab()
-        assert fp.skew_ms < 20.0 and fp.frames["top"].wall_time_s > 1e9
+        assert fp.skew_ms < 100.0 and fp.frames["top"].wall_time_s > 1e9
     cam = _SlowCamera("top", 2.0, timeout_s=0.2).open()
     t = time.monotonic()
     with pytest.raises(TimeoutError, match="camera 'top'"):

@@ -8,6 +8,11 @@
    harness prints the simulated time, plant encoder counts and PWM outputs,
    which is what the latency measurements below use.  Skipped only when
    avr-gcc is missing.
+
+   The driver attaches to the emulator's clock channel (rig.arduino.EmulatorClock):
+   its heartbeats lease the emulator simulated time and its timeouts count
+   simulated time, so these tests hold on a loaded machine; the real-time
+   semantics of a real Uno (clock="real", no lease) are checked too.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import os
 import random
 import signal
 import statistics
+import sys
 import time
 from unittest import mock
 
@@ -30,7 +36,9 @@ from rig.actuator import (
 )
 from rig.arduino import (
     ArduinoActuator,
+    EmulatorClock,
     Frame,
+    LinkClock,
     LineSplitter,
     Protocol,
     ProtocolError,
@@ -290,6 +298,24 @@ class TestDriverWithoutController:
             os.close(master)
             os.close(slave)
 
+    def test_real_ports_keep_real_time(self):
+        """A pty (or serial port) that no ctr_sim serves gets no emulator clock: real time."""
+        master, slave = os.openpty()
+        try:
+            url = os.ttyname(slave)
+            assert EmulatorClock.attach(url) is None
+            assert EmulatorClock.attach("socket://localhost:9") is None
+            assert EmulatorClock.attach("/dev/null") is None
+            with pytest.raises(ConnectionError, match=f"^{url}: clock='emulator' but no ctr_sim clock channel"):
+                ArduinoActuator(url, clock="emulator")
+            with pytest.raises(ValueError, match="clock must be"):
+                ArduinoActuator(url, clock="sim")
+            clock = LinkClock()
+            assert not clock.emulated and abs(clock.now() - time.monotonic()) < 0.01
+        finally:
+            os.close(master)
+            os.close(slave)
+
 
 # ===========================================================================
 # 2. firmware in the loop
@@ -337,12 +363,34 @@ def _assert_stopped_after(h, ev, label):
 def test_handshake(rig):
     h, act = rig
     assert act.connected and act.firmware_version == "1.0.0"
+    assert act.clock.emulated, "the driver did not attach to the emulator's clock channel"
     # the pty open reset the MCU (like the Uno's DTR) and the driver consumed READY
     assert h.wait_event("R").fields == ("open",)
     assert act.resets == 0
     st = act.status()
     assert not st.homed and not st.enabled
     assert st.position == JointValues(0.0, 0.0)
+
+
+def test_clock_channel(sim_factory):
+    """ctr_sim's clock channel: found from the pty path (also through a --link
+    symlink), reports simulated time, absent with --no-sync."""
+    import tempfile
+    link = os.path.join(tempfile.mkdtemp(), "ctr-uno")
+    h = sim_factory("--link", link)
+    assert h.wait_event("SYNC", after_us=-2, timeout_s=5).kind == "SYNC"     # "SYNC @ctr_sim:<pty>"
+    clock = EmulatorClock.attach(link)
+    assert clock is not None and clock.emulated and clock.pid == h.proc.pid
+    assert clock.lease_s == pytest.approx(0.05)
+    t0 = clock.now()
+    for _ in range(10):                 # leases keep the simulation running
+        clock.tick(0)
+        time.sleep(0.02)
+    assert clock.now() > t0
+    clock.close()
+    assert not clock.attached
+    h2 = sim_factory("--no-sync")
+    assert EmulatorClock.attach(h2.pty) is None
 
 
 def test_handshake_without_reset_on_open(sim_factory):
@@ -430,7 +478,7 @@ def test_soft_limits_firmware_side(homed_rig):
     # a fully raw frame written on the line
     n = len(act.async_errors)
     act.write_raw(Protocol.encode(0, "MOV", 65000, 0))
-    deadline = time.monotonic() + 1
+    deadline = time.monotonic() + 5
     while len(act.async_errors) == n and time.monotonic() < deadline:
         time.sleep(0.01)
     assert [Protocol.error_of(f)[0] for f in act.async_errors[n:]] == [4]
@@ -447,7 +495,7 @@ def test_not_homed_refused(rig):
         act.move_to({"insertion_mm": 5.0, "rotation_deg": 0.0})
 
 
-def _wait_async_errors(act, n, count, timeout_s=1.0):
+def _wait_async_errors(act, n, count, timeout_s=5.0):
     deadline = time.monotonic() + timeout_s
     while len(act.async_errors) < n + count and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -514,17 +562,87 @@ def test_fault_bad_checksum(homed_rig):
 
 
 def test_fault_no_reply(rig):
-    """Controller hung / cable half dead: bounded wait, retries, one-line error."""
+    """Controller hung / cable half dead: bounded wait, retries, one-line error.
+
+    The whole emulator is frozen (SIGSTOP): its simulated time stands still, so
+    the driver's emulator clock counts wall-clock time once it has stood still
+    for ``stall_s`` (EMULATOR_STALL_S, lowered here to keep the test short):
+    every wait stays bounded."""
     h, act = rig
+    assert act.clock.emulated
+    act.clock.stall_s = 0.2
     h.proc.send_signal(signal.SIGSTOP)          # freeze the whole emulator
     try:
         t = time.monotonic()
         with pytest.raises(TimeoutError, match=rf"^{h.pty}: STAT: no reply within 100 ms after 2 attempt\(s\)$"):
             act.command("STAT", timeout_s=0.1, retries=1)
-        assert time.monotonic() - t < 0.5
+        dt = time.monotonic() - t
+        # 2 x 100 ms of link time, which ran in wall-clock time after the first 0.2 s
+        assert 0.2 <= dt < 2 * 0.1 + 0.2 + 1.0, dt
     finally:
         h.proc.send_signal(signal.SIGCONT)
     assert act.status().position == JointValues(0.0, 0.0)   # recovers, late replies ignored
+
+
+def _hog_gil(seconds: float) -> None:
+    """Keep every other thread of this process (the driver's reader and heartbeat
+    threads too) from running for ``seconds``: what a long C call holding the GIL
+    (the live reconstruction's), or a machine with more busy processes than
+    cores, does to the host."""
+    old = sys.getswitchinterval()
+    sys.setswitchinterval(seconds + 1.0)
+    try:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            pass
+    finally:
+        sys.setswitchinterval(old)
+
+
+def _host_silence_ms(h, us0: int, us1: int) -> float:
+    """Longest time (simulated ms) the MCU went without a byte from the host."""
+    ts = [t for t in h.tlines_between(us0, us1) if t.flags & 8]
+    assert ts, "no status lines"
+    return max(t.us - t.last_rx_us for t in ts) / 1000.0
+
+
+def test_host_stall_freezes_the_emulator_not_the_motors(homed_rig):
+    """A host that does not run for 0.5 s does not trip the firmware's 100 ms link
+    watchdog on the emulator: the last heartbeat's lease (50 ms of simulated time)
+    runs out and the emulator waits for the host, so in the firmware's time the
+    heartbeats stay <= ~50 ms apart."""
+    h, act = homed_rig
+    assert act.clock.emulated, "the driver did not attach to the emulator's clock channel"
+    _moving_insertion(h, act, 40.0)
+    t0 = h.latest().us
+    _hog_gil(0.5)
+    time.sleep(0.1)
+    st = act.status()
+    t1 = h.latest().us
+    assert not st.watchdog_tripped and st.enabled and act.watchdog_events == 0
+    silence = _host_silence_ms(h, t0, t1)
+    assert silence < 0.75 * LINK_TIMEOUT_MS, f"host silent for {silence:.1f} ms of simulated time"
+    assert act.clock.waits_seen >= 1, "the emulator never waited for the host"
+    assert (t1 - t0) / 1000.0 < 500.0, "simulated time ran on while the host stood still"
+    act.wait_settled(timeout_s=10)
+    _report("host stalled 500 ms (GIL held)", f"emulator waited; longest host silence {silence:.1f} sim ms, "
+            f"motors kept running")
+
+
+def test_host_stall_without_lease_trips_the_watchdog(homed_rig):
+    """Without the lease -- the real-time semantics of a real Uno (clock="real") --
+    the same stall stops the motors after 100 ms: the emulator clock must not hide
+    the safety function."""
+    h, act = homed_rig
+    _moving_insertion(h, act, 40.0)
+    act.clock.close()                 # stop leasing: the emulator runs free in real time
+    t0 = h.latest().us
+    _hog_gil(0.5)
+    ev = h.wait_event("S", after_us=t0, timeout_s=2)
+    lat = (ev.us - int(ev.fields[0])) / 1000.0
+    assert LINK_TIMEOUT_MS - 2.0 <= lat <= LINK_TIMEOUT_MS + 0.5
+    with pytest.raises(ActuatorError, match="link watchdog"):
+        act.wait_settled(timeout_s=2)
 
 
 def test_fault_link_closed_mid_move(homed_rig):

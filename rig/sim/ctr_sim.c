@@ -15,6 +15,16 @@
  *
  * Simulated time is throttled to wall-clock time (option --speed).
  *
+ * Host clock channel (see "clock channel" below and rig/firmware/README.md):
+ * a SOCK_SEQPACKET unix socket in the abstract namespace, "@ctr_sim:<pty>".
+ * A host connected to it (rig/arduino.py does so for a pty served by this
+ * harness) leases simulated time: the simulation never runs more than
+ * --lease-ms of simulated time past the host's latest lease, and a lease
+ * only counts once every byte the host wrote before it has been read from
+ * the pty.  So a host (or harness) that the OS does not schedule for a while
+ * freezes simulated time instead of starving the firmware's link watchdog.
+ * Without a connected client (or with --no-sync) the harness runs as before.
+ *
  * stdout (line oriented, flushed, written non-blocking: lines are dropped
  * rather than stalling the simulation if nobody reads them):
  *   PTY <path>                 first line: the serial port to open
@@ -31,7 +41,10 @@
  *   M <us> <last_rx_us>        at least one PWM output became non-zero
  *   C <us> <0|1>               a client opened (1) / closed (0) the pty
  *   R <us> <why>               MCU reset: signal | open | internal
- *   Q <us> <reason>            harness exits
+ *   SYNC @<name>               second line: the host clock channel
+ *                              (absent with --no-sync)
+ *   Q <us> <reason> ...        harness exits, with real-time lag and
+ *                              clock-channel statistics
  *   X <us> <hex> / Y <us> <hex> with --trace-uart: each byte handed to /
  *                              sent by the MCU's USART
  * All other chatter (libsimavr) goes to stderr.
@@ -54,11 +67,15 @@
 #include <pty.h>
 #include <signal.h>
 #include <stdarg.h>
+#include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/prctl.h>
+#include <sys/socket.h>
+#include <sys/stat.h>
+#include <sys/un.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -96,6 +113,8 @@ static double opt_th0_deg = 0.0;
 static int opt_reset_on_open = 1;
 static const char *opt_link = NULL;
 static int opt_trace_uart = 0;
+static int opt_sync = 1;
+static double opt_lease_ms = 50.0;
 
 /* ------------------------------------------------------------------ */
 /* output                                                             */
@@ -285,6 +304,7 @@ static avr_cycle_count_t plant_tick(avr_t *a, avr_cycle_count_t when, void *para
 static int pty_master = -1;
 static char pty_name[128];
 static int connected;
+static uint64_t pty_rx_count;        /* bytes read from the pty since the client opened it */
 
 #define QSIZE 8192u
 typedef struct { uint8_t b[QSIZE]; unsigned head, tail; } queue_t;  /* free-running */
@@ -370,6 +390,7 @@ static void set_connected(int c)
     if (c == connected)
         return;
     connected = c;
+    pty_rx_count = 0;
     q_clear(&host_to_avr);
     q_clear(&avr_to_host);
     emit("C %llu %d\n", (unsigned long long)sim_us(), c);
@@ -380,13 +401,23 @@ static void set_connected(int c)
     }
 }
 
+/* clock channel fds (below), polled together with the pty */
+static int sync_listen = -1, sync_client = -1;
+static short sync_revents;
+
 static void pty_service(void)
 {
-    struct pollfd p = { .fd = pty_master, .events = POLLIN };
+    struct pollfd pp[2] = { { .fd = pty_master, .events = POLLIN } };
+    nfds_t np = 1;
+    int sfd = sync_client >= 0 ? sync_client : sync_listen;
+    if (sfd >= 0)
+        pp[np++] = (struct pollfd){ .fd = sfd, .events = POLLIN };
     if (q_len(&avr_to_host))
-        p.events |= POLLOUT;
-    if (poll(&p, 1, 0) < 0)
+        pp[0].events |= POLLOUT;
+    if (poll(pp, np, 0) < 0)
         return;
+    sync_revents = np > 1 ? pp[1].revents : 0;
+    struct pollfd p = pp[0];
     if (p.revents & POLLIN) {
         uint8_t buf[512];
         unsigned room = QSIZE - q_len(&host_to_avr);
@@ -396,6 +427,7 @@ static void pty_service(void)
             ssize_t n = read(pty_master, buf, room);
             if (n > 0) {
                 set_connected(1);
+                pty_rx_count += (uint64_t)n;
                 for (ssize_t i = 0; i < n; i++)
                     q_put(&host_to_avr, buf[i]);
             } else if (n < 0 && errno == EIO) {
@@ -431,6 +463,186 @@ static double wall_s(void)
     return (double)(t.tv_sec - wall0.tv_sec) + 1e-9 * (double)(t.tv_nsec - wall0.tv_nsec);
 }
 
+static void shift_wall0(double s)        /* s >= 0: the simulation "lost" s of wall time */
+{
+    wall0.tv_sec += (time_t)s;
+    wall0.tv_nsec += (long)((s - (double)(time_t)s) * 1e9);
+    while (wall0.tv_nsec >= 1000000000L) { wall0.tv_nsec -= 1000000000L; wall0.tv_sec++; }
+}
+
+/* ---- host clock channel ("lease") ----------------------------------
+ *
+ * host -> harness   "L <n>"     lease: the host is running and has written
+ *                               n bytes to the pty since it opened it
+ * harness -> host   "H <pid> <st_dev> <st_rdev> <st_ino> <lease_us> <us>"
+ *                               hello, on accept: identifies the pty (the
+ *                               client checks it is the port it opened)
+ *                   "T <us>"    simulated time, every 10 ms of it and at
+ *                               every lease taken
+ *                   "W <us>"    simulation waits for a lease (host late)
+ *
+ * A lease taken at simulated time t lets the simulation run to
+ * t + --lease-ms.  It is taken once pty_rx_count >= n, i.e. once the
+ * heartbeat the host wrote before it is in the UART queue: the firmware
+ * then sees a host frame at least every lease_ms (+ the frame's line time),
+ * however late the host thread runs in wall-clock time.  While no lease is
+ * left the simulation waits (no simulated time passes) and keeps serving
+ * the pty and the socket.  The lease binds only while both the pty and the
+ * socket have a client; a lease still unmet after 0.25 s of wall time is
+ * taken anyway (counted as forced: a byte-count mismatch must not hang). */
+#define SYNC_REPORT_US   10000u
+#define SYNC_FORCE_S     0.25
+
+static char sync_name[160];
+static uint64_t lease_end_us;
+static int64_t lease_pending = -1;     /* n of the newest unmet lease, -1: none */
+static double lease_pending_wall;
+static uint64_t next_report_us;
+static unsigned long n_leases, n_forced, n_stalls;
+static double stall_total_ms, stall_max_ms;
+
+static void sync_send(const char *fmt, ...)
+{
+    if (sync_client < 0)
+        return;
+    char msg[128];
+    va_list ap;
+    va_start(ap, fmt);
+    int n = vsnprintf(msg, sizeof msg, fmt, ap);
+    va_end(ap);
+    if (n > 0)
+        (void)send(sync_client, msg, (size_t)n, MSG_DONTWAIT | MSG_NOSIGNAL);
+}
+
+static void sync_open(void)
+{
+    sync_listen = socket(AF_UNIX, SOCK_SEQPACKET | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
+    if (sync_listen < 0) {
+        fprintf(stderr, "ctr_sim: clock channel: socket: %s\n", strerror(errno));
+        return;
+    }
+    struct sockaddr_un a;
+    memset(&a, 0, sizeof a);
+    a.sun_family = AF_UNIX;
+    snprintf(sync_name, sizeof sync_name, "ctr_sim:%s", pty_name);
+    size_t len = strlen(sync_name);
+    if (len + 1 > sizeof a.sun_path)
+        len = sizeof a.sun_path - 1;
+    memcpy(a.sun_path + 1, sync_name, len);       /* abstract: sun_path[0] = 0 */
+    socklen_t alen = (socklen_t)(offsetof(struct sockaddr_un, sun_path) + 1 + len);
+    if (bind(sync_listen, (struct sockaddr *)&a, alen) != 0 || listen(sync_listen, 1) != 0) {
+        fprintf(stderr, "ctr_sim: clock channel @%s: %s (running without it)\n", sync_name, strerror(errno));
+        close(sync_listen);
+        sync_listen = -1;
+    }
+}
+
+static void sync_drop_client(void)
+{
+    if (sync_client >= 0)
+        close(sync_client);
+    sync_client = -1;
+    lease_pending = -1;
+}
+
+static void take_lease(int forced)
+{
+    lease_end_us = sim_us() + (uint64_t)(opt_lease_ms * 1000.0);
+    lease_pending = -1;
+    n_leases++;
+    if (forced)
+        n_forced++;
+    sync_send("T %llu", (unsigned long long)sim_us());
+}
+
+static void sync_service(void)
+{
+    if (sync_listen < 0)
+        return;
+    short rev = sync_revents;
+    sync_revents = 0;
+    if (!rev)
+        goto check;
+    if (sync_client < 0) {
+        int c = accept4(sync_listen, NULL, NULL, SOCK_NONBLOCK | SOCK_CLOEXEC);
+        if (c >= 0) {
+            struct stat st;
+            memset(&st, 0, sizeof st);
+            stat(pty_name, &st);
+            sync_client = c;
+            lease_pending = -1;
+            lease_end_us = sim_us() + (uint64_t)(opt_lease_ms * 1000.0);
+            sync_send("H %ld %llu %llu %llu %llu %llu", (long)getpid(), (unsigned long long)st.st_dev,
+                      (unsigned long long)st.st_rdev, (unsigned long long)st.st_ino,
+                      (unsigned long long)(opt_lease_ms * 1000.0), (unsigned long long)sim_us());
+        }
+        goto check;
+    }
+    for (;;) {
+        char msg[64];
+        ssize_t n = recv(sync_client, msg, sizeof msg - 1, MSG_DONTWAIT);
+        if (n == 0 || (n < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR)) {
+            sync_drop_client();             /* host gone: run free (real time) */
+            return;
+        }
+        if (n < 0)
+            break;
+        msg[n] = 0;
+        if (msg[0] == 'L') {
+            long long v = strtoll(msg + 1, NULL, 10);
+            if (v >= 0) {
+                if (lease_pending < 0)
+                    lease_pending_wall = wall_s();
+                lease_pending = v;
+            }
+        }
+    }
+check:
+    if (sync_client >= 0 && lease_pending >= 0 && (!connected || pty_rx_count >= (uint64_t)lease_pending))
+        take_lease(0);
+}
+
+static int lease_binds(void)
+{
+    return sync_client >= 0 && connected;
+}
+
+/* no lease left: wait for the host without advancing simulated time */
+static void wait_for_lease(void)
+{
+    double t0 = wall_s();
+    int waited = 0;
+    while (lease_binds() && sim_us() >= lease_end_us && !sig_quit && !sig_reset) {
+        if (!waited) {
+            sync_send("W %llu", (unsigned long long)sim_us());
+            waited = 1;
+        }
+        struct pollfd p[2];
+        int np = 0;
+        p[np++] = (struct pollfd){ .fd = sync_client, .events = POLLIN };
+        short ev = 0;
+        if (QSIZE - q_len(&host_to_avr) > 0)
+            ev |= POLLIN;
+        if (q_len(&avr_to_host))
+            ev |= POLLOUT;
+        if (ev)
+            p[np++] = (struct pollfd){ .fd = pty_master, .events = ev };
+        poll(p, (nfds_t)np, 10);
+        pty_service();                  /* re-polls both without blocking */
+        sync_service();
+        if (lease_pending >= 0 && wall_s() - lease_pending_wall > SYNC_FORCE_S)
+            take_lease(1);
+    }
+    if (waited) {
+        double dt = wall_s() - t0;
+        shift_wall0(dt);                /* the wait is not a real-time lag */
+        n_stalls++;
+        stall_total_ms += dt * 1e3;
+        if (dt * 1e3 > stall_max_ms)
+            stall_max_ms = dt * 1e3;
+    }
+}
+
 static void throttle(void)
 {
     if (opt_speed <= 0)
@@ -447,10 +659,7 @@ static void throttle(void)
         double lag_ms = -ahead * 1e3;
         if (lag_ms > max_lag_ms)
             max_lag_ms = lag_ms;
-        double shift = -ahead - 0.05;
-        wall0.tv_sec += (time_t)shift;
-        wall0.tv_nsec += (long)((shift - (double)(time_t)shift) * 1e9);
-        while (wall0.tv_nsec >= 1000000000L) { wall0.tv_nsec -= 1000000000L; wall0.tv_sec++; }
+        shift_wall0(-ahead - 0.05);
     }
 }
 
@@ -458,7 +667,14 @@ static avr_cycle_count_t io_tick(avr_t *a, avr_cycle_count_t when, void *param)
 {
     (void)a; (void)param;
     pty_service();
+    sync_service();
+    if (lease_binds() && sim_us() >= lease_end_us)
+        wait_for_lease();
     uint64_t us = sim_us();
+    if (sync_client >= 0 && us >= next_report_us) {
+        sync_send("T %llu", (unsigned long long)us);
+        next_report_us = us + SYNC_REPORT_US;
+    }
     if (opt_status_ms > 0 && us >= next_status_us) {
         int flags = (mot[0].brake ? 1 : 0) | (mot[1].brake ? 2 : 0) |
                     (switch_level == 0 ? 4 : 0) | (connected ? 8 : 0);
@@ -536,7 +752,9 @@ static void usage(const char *argv0)
             "  --th0-deg DEG      initial rotation (default 0)\n"
             "  --no-reset-on-open do not reset the MCU when a client opens the pty\n"
             "  --link PATH        also create the symlink PATH -> pty\n"
-            "  --trace-uart       print every UART byte: X <us> <hex> (to the MCU), Y <us> <hex> (from it)\n",
+            "  --trace-uart       print every UART byte: X <us> <hex> (to the MCU), Y <us> <hex> (from it)\n"
+            "  --lease-ms MS      host clock channel: simulated time a lease lets the simulation run (default 50)\n"
+            "  --no-sync          no host clock channel: simulated time follows the wall clock only\n",
             argv0);
     exit(2);
 }
@@ -553,11 +771,17 @@ int main(int argc, char **argv)
         else if (!strcmp(a, "--no-reset-on-open")) opt_reset_on_open = 0;
         else if (!strcmp(a, "--link") && i + 1 < argc) opt_link = argv[++i];
         else if (!strcmp(a, "--trace-uart")) opt_trace_uart = 1;
+        else if (!strcmp(a, "--no-sync")) opt_sync = 0;
+        else if (!strcmp(a, "--lease-ms") && i + 1 < argc) opt_lease_ms = atof(argv[++i]);
         else if (a[0] == '-') usage(argv[0]);
         else elf = a;
     }
     if (!elf)
         usage(argv[0]);
+    if (!(opt_lease_ms > 0 && opt_lease_ms < 1e6)) {
+        fprintf(stderr, "ctr_sim: --lease-ms must be > 0\n");
+        return 2;
+    }
 
     /* protocol lines on the original stdout, library chatter on stderr */
     out_fd = dup(1);
@@ -623,7 +847,11 @@ int main(int argc, char **argv)
     avr->sleep = no_sleep;
 
     pty_open();
+    if (opt_sync)
+        sync_open();            /* before the PTY line: a host may connect as soon as it reads it */
     emit("PTY %s\n", pty_name);
+    if (sync_listen >= 0)
+        emit("SYNC @%s\n", sync_name);
 
     clock_gettime(CLOCK_MONOTONIC, &wall0);
     arm();
@@ -655,8 +883,13 @@ int main(int argc, char **argv)
         if (sig_quit)
             break;
     }
-    emit("Q %llu %s max_lag_ms=%.1f dropped_lines=%lu steps=%llu sleeping=%llu\n",
-         (unsigned long long)sim_us(), why, max_lag_ms, out_dropped, n_run, n_sleep);
+    emit("Q %llu %s max_lag_ms=%.1f dropped_lines=%lu steps=%llu sleeping=%llu "
+         "leases=%lu forced_leases=%lu lease_waits=%lu lease_wait_ms=%.1f max_lease_wait_ms=%.1f\n",
+         (unsigned long long)sim_us(), why, max_lag_ms, out_dropped, n_run, n_sleep,
+         n_leases, n_forced, n_stalls, stall_total_ms, stall_max_ms);
+    sync_drop_client();
+    if (sync_listen >= 0)
+        close(sync_listen);
     if (opt_link)
         unlink(opt_link);
     return state == cpu_Crashed ? 3 : 0;
