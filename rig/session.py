@@ -233,10 +233,27 @@ class Session:
         self.rig: RigCalibration = _read_rig(self.dir / "rig.json")
         self.cameras = check_cameras(self.meta.get("cameras", self.rig.names), meta_path, self.rig.names, self.dir / "rig.json")
         self.n_tubes = self.meta.get("n_tubes", 0)
+        self._check_memory()
         self.frames, self.notes = self._read_frames()
         if not self.frames and not allow_empty:
             cut = f" ({self.notes[0]})" if self.notes else ""
             raise SessionError(f"{self.dir / 'frames.csv'}: no committed frames, nothing to reconstruct{cut}")
+
+    def _check_memory(self) -> None:
+        """Refuse a session whose reconstruction would exceed the memory bound (:mod:`recon.memory`), before any image is read.
+
+        The estimate is that of the largest camera's frames with its background frames; the
+        message names rig.json's camera and the figure (``CTR_BENCH_MEMORY_LIMIT_GB`` raises the limit).
+        """
+        from recon.memory import MemoryBoundError, check_memory, reconstruction_bytes
+
+        cam = max((self.rig[c] for c in self.cameras), key=lambda c: c.width * c.height)
+        n_bg = len(self.background_paths(cam.name))
+        try:
+            check_memory(reconstruction_bytes(cam.width, cam.height, n_bg), f"{self.dir / 'rig.json'}: cameras.{cam.name}",
+                         f"reconstructing {cam.width}x{cam.height} px frames with {n_bg} background frames", SessionError)
+        except MemoryBoundError as exc:  # the variable itself is malformed
+            raise SessionError(f"{self.dir}: {exc}") from None
 
     def _read_frames(self) -> tuple:
         path = self.dir / "frames.csv"

@@ -358,6 +358,29 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
     assert "exactly one of" in capsys.readouterr().err
 
 
+def test_calibrate_refuses_to_write_a_rig_that_reconstruct_would_refuse(tmp_path, capsys):
+    """Issue 15 item 4: a lens with k1 = 50 (+88 % at the corners) is refused when rig.json is written, not at the next load."""
+    from recon.camera import Camera, look_at
+    from rig.cli import main
+
+    K = np.array([[1000.0, 0.0, 319.5], [0.0, 1000.0, 239.5], [0.0, 0.0, 1.0]])
+    top = Camera("top", 640, 480, K, dist=np.zeros(5), T_cam_world=look_at([35, 0, 300], [35, 0, 0], [0, -1, 0]))
+    side = Camera("side", 640, 480, K, dist=np.array([50.0, 0.0, 0.0, 0.0, 0.0]),
+                  T_cam_world=look_at([35, -300, 0], [35, 0, 0], [0, 0, -1]))
+    save_ros_camera_info(tmp_path / "side.yaml", side)
+    save_ros_camera_info(tmp_path / "top.yaml", top)
+    save_world_file(tmp_path / "world.yaml", top.T_cam_world, side.T_cam_world @ invert_transform(top.T_cam_world))
+    out = tmp_path / "out" / "rig.json"
+    args = ["calibrate", "--import-ros", str(tmp_path / "side.yaml"), str(tmp_path / "top.yaml"),
+            "--world-from", str(tmp_path / "world.yaml"), "--out", str(out)]
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and f"{out}: cameras.side.dist: the lens model distorts the image corners by +" in err, err
+    assert not out.parent.exists()
+    save_ros_camera_info(tmp_path / "side.yaml", Camera("side", 640, 480, K, dist=np.zeros(5), T_cam_world=side.T_cam_world))
+    assert main(args) == 0 and load_rig_calibration(out)["side"].width == 640
+
 def test_calibration_scene_validation(tmp_path):
     from twin.board import load_calibration_scene
     from twin.scene import SceneError

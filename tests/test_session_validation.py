@@ -492,3 +492,31 @@ def test_column_order_does_not_change_the_records(session):
     shuffled = Session(session).frames
     _write_csv(session, [",".join(fields) for fields in lines])
     assert shuffled == Session(session).frames and len(shuffled) == N_FRAMES
+
+
+# ----------------------------------------------------------------------------- memory bound
+
+def _claim_size(d: Path, camera: str, width: int, height: int) -> None:
+    """Make rig.json claim ``width`` x ``height`` px for ``camera`` (principal point at the centre); no image is touched."""
+    rig = json.loads((d / "rig.json").read_text())
+    cam = rig["cameras"][camera]
+    cam["width"], cam["height"] = width, height
+    cam["K"][0][2], cam["K"][1][2] = (width - 1) / 2, (height - 1) / 2
+    (d / "rig.json").write_text(json.dumps(rig))
+
+
+def test_a_session_beyond_the_memory_bound_is_refused_with_the_figure(session, monkeypatch):
+    """Issue 15 item 6: an 8000x6000 session took 8-9.6 GB; it is refused at load, before any image is read."""
+    monkeypatch.delenv("CTR_BENCH_MEMORY_LIMIT_GB", raising=False)
+    _claim_size(session, "top", 8000, 6000)
+    msg = _error(session)
+    # 260 MB + (120 + 14 x 6 background frames) bytes x 48e6 px = 10.05 GB
+    assert msg == (f"{session / 'rig.json'}: cameras.top: reconstructing 8000x6000 px frames with 6 background frames "
+                   "needs about 10.1 GB (limit 4.0 GB; CTR_BENCH_MEMORY_LIMIT_GB raises it)")
+    monkeypatch.setenv("CTR_BENCH_MEMORY_LIMIT_GB", "16")
+    assert Session(session).rig["top"].width == 8000  # a bigger machine may allow it
+    monkeypatch.setenv("CTR_BENCH_MEMORY_LIMIT_GB", "0.1")
+    _claim_size(session, "top", W, H)
+    assert "needs about 0.3 GB (limit 0.1 GB;" in _error(session)  # the template itself, under a lowered limit
+    monkeypatch.setenv("CTR_BENCH_MEMORY_LIMIT_GB", "lots")
+    assert _error(session) == f"{session}: CTR_BENCH_MEMORY_LIMIT_GB='lots': must be a positive number of GB"

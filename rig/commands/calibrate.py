@@ -87,10 +87,16 @@ def _calibrate_folder(args) -> int:
 
 def _save_rig(out: Path, rig) -> list:
     """The rig file and its exports: OpenCV (``<stem>_stereo.yaml``, per camera) and a rectified ROS stereo pair
-    (``<stem>_ros_<camera>.yaml``, skipped with a note when the distortion has no ROS model); returns the paths."""
+    (``<stem>_ros_<camera>.yaml``, skipped with a note when the distortion has no ROS model); returns the paths.
+
+    The rig is checked first (:func:`recon.calibration_check.check_rig`: K, principal point, orthonormal R, a lens that
+    neither folds nor bends the corners implausibly), so a calibration that reconstruct would refuse is never written.
+    """
+    from recon.calibration_check import check_rig
     from recon.calibration_io import export_rig_opencv, export_rig_ros
     from recon.rigcal import save_rig_calibration
 
+    check_rig(rig, str(out))
     out.parent.mkdir(parents=True, exist_ok=True)
     save_rig_calibration(out, rig)
     written = [out] + export_rig_opencv(rig, out.with_suffix(""))
