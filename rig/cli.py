@@ -17,7 +17,7 @@ __all__ = ["main", "CLIError", "COMMANDS"]
 
 #: Sub-command modules, in the order ``ctr-bench --help`` lists them.
 COMMANDS = ("run", "render", "reconstruct", "import_session", "bench", "render_bench", "calibrate", "experiment", "report",
-            "export", "verify", "fit", "tune", "scenes")
+            "export", "verify", "fit", "tune", "scenes", "dataset")
 
 
 class CLIError(Exception):

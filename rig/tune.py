@@ -25,7 +25,6 @@ and how flat the optimum is.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -171,42 +170,21 @@ class TuneSession:
     mm_per_px: float
 
 
-def _scene_key(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
-
-
-def _session_complete(session_dir: Path, n_frames: int) -> bool:
-    from rig.session import Session, SessionError
-
-    try:
-        return len(Session(session_dir).frames) >= n_frames
-    except SessionError:
-        return False
-
-
 def load_tune_sessions(scene_paths, cache_dir, progress=None, log=print) -> list:
     """Render (or reuse from ``cache_dir``) each scene and load it into memory.
 
     A scene is rendered again only when its file's contents changed: the cache
-    directory's name holds a hash of them.
+    directory's name holds a hash of them (:mod:`rig.render_cache`).
     """
-    import shutil
-
-    from rig.commands.render import render_scene_to
     from rig.reconstruct import load_background_frames, mm_per_pixel
+    from rig.render_cache import cached_session
     from rig.session import Session
     from twin.scene import load_scene
 
     out = []
-    cache_dir = Path(cache_dir)
     for path in map(Path, scene_paths):
         scene = load_scene(path)
-        target = cache_dir / f"{scene.name}-{_scene_key(path)}"
-        if not _session_complete(target, len(scene.joints)):
-            if target.exists():
-                shutil.rmtree(target)  # an interrupted render: start it over
-            log(f"rendering {path} ({len(scene.joints)} frames, {scene.background_frames} background frames) into {target}")
-            render_scene_to(scene, target, quiet=progress is None)
+        target = cached_session(scene, 1.0, Path(cache_dir), quiet=progress is None, log=log)
         session = Session(target)
         radii = session.robot_tube_radii_mm
         if radii is None:

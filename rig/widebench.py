@@ -252,9 +252,10 @@ def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache
         ``{"suite", "n", "seed", "methods": {name: aggregate | {"skipped": why}}, "classes": {name: by class}}``.
     """
     from recon.selfcheck import SelfCheckParams
-    from rig.commands.bench import PEERS, cached_session, method_status
+    from rig.commands.bench import PEERS, method_status
     from rig.progress import Progress
     from rig.reconstruct import reconstruct_session
+    from rig.render_cache import cached_session
     from rig.session import Session
     from twin.scene import load_scene
 

@@ -1,7 +1,7 @@
 """``ctr-bench bench [SCENE]``: every method on the same rendered frames, side by side, on one core.
 
-The scene is rendered once into a cache (``out/bench-cache/<scene>-<hash>``,
-the hash covering the scene file, the frame counts and the image scale), then
+The scene is rendered once into a cache (``out/bench-cache/<scene>-<WxH>-<hash>``,
+:mod:`rig.render_cache`: the hash covers the scene file, frame counts, model, image scale and the twin's code), then
 each method reconstructs the same frames in the same process:
 
 * ``paper``: the paper's method (:mod:`recon.paper`);
@@ -32,17 +32,17 @@ each method on each, and the paper's method at 50^3, 100^3 and 200^3 voxels.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
-import shutil
 import sys
 import time
 import tracemalloc
 from dataclasses import replace
 from pathlib import Path
 
-from .render import add_scene_options, load_scene_from_args, render_scene_to
+from rig.render_cache import DEFAULT_CACHE_DIR, cached_session
+
+from .render import add_scene_options, load_scene_from_args
 
 METHODS = ("paper", "fast", "icp-epipolar")
 PEERS = ("icp-epipolar",)
@@ -86,53 +86,6 @@ def pin_one_core() -> int:
 
 
 # ----------------------------------------------------------------------------- sessions
-def scaled_scene(scene, factor: float):
-    """The scene with every camera's image ``factor`` times larger (same field of view)."""
-    if factor == 1:
-        return scene
-    from recon.rigcal import RigCalibration
-
-    rig = scene.rig
-    cams = {n: c.scaled(factor) for n, c in rig.cameras.items()}
-    new_rig = RigCalibration(cameras=cams, base_point_world_mm=rig.base_point_world_mm, insertion_axis_world=rig.insertion_axis_world)
-    return replace(scene, rig=new_rig)
-
-
-def cache_key(scene, factor: float) -> str:
-    """Hash of what the rendered session depends on: the scene file, frame counts, image scale."""
-    h = hashlib.sha256()
-    try:
-        h.update(Path(scene.source).read_bytes())
-    except OSError:
-        h.update(scene.source.encode())
-    h.update(f"|frames={len(scene.joints)}|bg={scene.background_frames}|scale={factor:g}".encode())
-    return h.hexdigest()[:12]
-
-
-def cached_session(scene, factor: float, cache_dir: Path, quiet: bool = True) -> Path:
-    """A rendered session of ``scene`` at image scale ``factor``, rendered on first use."""
-    from rig.session import Session, SessionError
-
-    sc = scaled_scene(scene, factor)
-    cam0 = sc.rig[sc.rig.names[0]]
-    out = cache_dir / f"{scene.name}-{cam0.width}x{cam0.height}-{cache_key(scene, factor)}"
-    if (out / "session.json").exists():
-        try:
-            s = Session(out)
-            if len(s.frames) == len(sc.joints):
-                return out
-        except SessionError:
-            pass
-        shutil.rmtree(out, ignore_errors=True)
-    tmp = out.with_name(out.name + f".tmp{os.getpid()}")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.parent.mkdir(parents=True, exist_ok=True)
-    print(f"rendering {scene.name!r} at {cam0.width}x{cam0.height} ({len(sc.joints)} frames) into {out} (cached for later runs)", file=sys.stderr)
-    render_scene_to(sc, tmp, quiet=quiet)
-    os.replace(tmp, out)
-    return out
-
-
 def load_session(path: Path) -> dict:
     """Background stacks, frame images and ground-truth backbones of a session, in memory.
 
@@ -448,7 +401,7 @@ def register(sub) -> None:
     p.add_argument("--methods", type=method_list, default=None, metavar="LIST",
                    help=f"comma-separated subset of {','.join(METHODS)} (default: all)")
     p.add_argument("--repeats", type=int, default=3, help="passes over the sequence per method; a frame's time is its fastest (default 3)")
-    p.add_argument("--cache-dir", default=str(Path("out") / "bench-cache"), help="where rendered sessions are cached (default out/bench-cache)")
+    p.add_argument("--cache-dir", default=str(DEFAULT_CACHE_DIR), help="where rendered sessions are cached (default %(default)s)")
     p.add_argument("--scaling", action="store_true", help="also the resolution (0.5x, 1x, 2x) and voxel (50^3, 100^3, 200^3) study")
     p.add_argument("--scaling-frames", type=int, default=6, help="frames per scene in the scaling study (default 6)")
     p.add_argument("--json", action="store_true", help="print one JSON object keyed by method name")
