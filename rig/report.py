@@ -17,6 +17,8 @@ import html
 import json
 import shutil
 import time
+import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -657,21 +659,30 @@ class RunData:
     session_meta: dict = field(default_factory=dict)
     rig: object = None                   # RigCalibration or None
     truth_keys: dict = field(default_factory=dict)  # frame -> truth npz path
+    truth_notes: dict = field(default_factory=dict)  # frame -> why its truth could not be used
 
     @property
     def records(self) -> list:
         return self.summary.get("per_frame", [])
 
     def truth(self, frame: int, keys=("backbone_world_mm", "outer_radius_mm")) -> dict | None:
-        """The wanted ground-truth arrays of a frame (only those are decompressed)."""
+        """The wanted ground-truth arrays of a frame (only those are decompressed), checked as the session
+        format says (:func:`rig.session_checks.check_truth`). A file that is unreadable or malformed is
+        that frame's note in ``truth_notes`` (drawn without truth), never the end of the report."""
+        from .session_checks import TruthError, check_truth
+
         path = self.truth_keys.get(frame)
         if path is None:
             return None
         try:
-            with np.load(path) as z:
-                return {k: z[k] for k in keys if k in z.files}
-        except (OSError, ValueError):
-            return None
+            with np.load(path, allow_pickle=False) as z:
+                arrays = {k: z[k] for k in keys if k in z.files}
+            return check_truth(arrays, path, {}, 0)
+        except TruthError as exc:
+            self.truth_notes[frame] = str(exc)
+        except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+            self.truth_notes[frame] = f"{path}: unreadable ground truth ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
+        return None
 
 
 def load_run(out_dir) -> RunData:
@@ -1427,6 +1438,10 @@ def build_report(out_dir, meshes: bool | None = None, max_detail_frames: int = M
         say(f"report: overlays of {len(details)} frames")
         figs["overlay"] = _overlay_figures(run, details, tmp)
 
+    # Frames whose truth file could not be used are drawn without truth: said here, and by the caller's log.
+    for frame, why in sorted(run.truth_notes.items()):
+        notes.append(f"Frame {frame} is drawn without ground truth: {why}")
+        say(f"report: frame {frame} without ground truth: {why}")
     page = _html_page(run, figs, details, mesh_links, notes, time.perf_counter() - t_start)
     (tmp / "index.html").write_text(page, encoding="utf-8")
     final = out / "report"

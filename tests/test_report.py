@@ -178,6 +178,24 @@ def test_cli_rebuilds_and_runs_without_session(tmp_path, capsys):
     assert not (bare / "meshes").exists()
 
 
+@pytest.mark.parametrize("spoil", ["corrupt", "two_columns"])
+def test_a_bad_truth_file_is_a_note_not_the_end_of_the_report(tmp_path, spoil):
+    # One corrupt or malformed truth npz used to stop the whole report with a traceback.
+    from rig.report import build_report
+
+    out = make_run_dir(tmp_path)
+    bad = out / "session" / "truth" / "000001.npz"
+    if spoil == "corrupt":
+        bad.write_bytes(b"PK\x03\x04 not a zip archive")
+    else:
+        with np.load(bad) as z:
+            arrays = dict(z)
+        np.savez(bad, **{**arrays, "backbone_world_mm": arrays["backbone_world_mm"][:, :2]})
+    html = build_report(out, meshes=False).read_text()
+    assert "Frame 1 is drawn without ground truth" in html and "000001.npz" in html
+    assert "Frame 0 is drawn without" not in html
+
+
 def test_cli_report_errors_are_one_line(tmp_path, capsys):
     from rig.cli import main
     from rig.report import report_or_warn
