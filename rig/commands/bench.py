@@ -140,6 +140,25 @@ def method_status(name: str) -> tuple[bool, str]:
     return True, "available"
 
 
+def _aggregates(best_ms, errors: list) -> dict:
+    """Time (ms per pair, over the frames reconstructed: finite ``best_ms``) and error (mm, over the scored
+    frames: ``errors`` not None) figures of a method's run."""
+    import numpy as np
+
+    ok = np.isfinite(best_ms)
+    scored = [e for e in errors if e is not None]
+    return {
+        "ms_per_pair_median": float(np.median(best_ms[ok])) if ok.any() else None,
+        "ms_per_pair_p95": float(np.percentile(best_ms[ok], 95)) if ok.any() else None,
+        "pairs_per_s": float(1e3 / np.median(best_ms[ok])) if ok.any() else None,
+        "mean_error_mm": float(np.mean([e["mean_error_mm"] for e in scored])) if scored else None,
+        "max_error_mm": float(np.max([e["max_error_mm"] for e in scored])) if scored else None,
+        "tip_error_mm_median": float(np.median([e["tip_error_mm"] for e in scored])) if scored else None,
+        "tip_error_mm_max": float(np.max([e["tip_error_mm"] for e in scored])) if scored else None,
+        "scored_frames": len(scored),
+    }
+
+
 def run_method(name: str, data: dict, params=None, repeats: int = 3, budget_s: float = 30.0, memory: bool = True) -> dict:
     """Time and score one method on the frames of ``data``; see the module doc for the protocol."""
     import numpy as np
@@ -184,46 +203,39 @@ def run_method(name: str, data: dict, params=None, repeats: int = 3, budget_s: f
                 if getattr(result, "jump_flag", False):
                     extras.setdefault("jump_flags", []).append(i)
     ok = np.isfinite(best)
-    scored = [e for e in errors if e is not None]
-    out = {
-        "method": name,
-        "frames": n,
-        "failed_frames": int(n - ok.sum()),
-        "passes": passes,
-        "prepare_s": prepare_s,
-        "ms_per_pair_median": float(np.median(best[ok])) if ok.any() else None,
-        "ms_per_pair_p95": float(np.percentile(best[ok], 95)) if ok.any() else None,
-        "pairs_per_s": float(1e3 / np.median(best[ok])) if ok.any() else None,
-        "mean_error_mm": float(np.mean([e["mean_error_mm"] for e in scored])) if scored else None,
-        "max_error_mm": float(np.max([e["max_error_mm"] for e in scored])) if scored else None,
-        "tip_error_mm_median": float(np.median([e["tip_error_mm"] for e in scored])) if scored else None,
-        "tip_error_mm_max": float(np.max([e["tip_error_mm"] for e in scored])) if scored else None,
-        "failures": sorted({f for f in failures if f})[:5],
-        "scored_frames": len(scored),
-        "score_notes": [note for note in data.get("truth_notes") or () if note],
-    }
+    out = {"method": name, "frames": n, "failed_frames": int(n - ok.sum()), "passes": passes, "prepare_s": prepare_s,
+           **_aggregates(best, errors), "failures": sorted({f for f in failures if f})[:5],
+           "score_notes": [note for note in data.get("truth_notes") or () if note]}
     out.update(extras)
     if memory and ok.any():
-        i = int(np.flatnonzero(ok)[0])
-        if hasattr(rec, "reset"):
-            rec.reset()
-        # numba's allocator is invisible to tracemalloc: measure the fast method's NumPy path (same arrays).
-        import recon.subpixel as sp
-
-        use_numba = sp.USE_NUMBA
-        sp.USE_NUMBA = False
-        tracemalloc.start()
-        try:
-            rec(data["frames"][i])
-        except FrameError:
-            pass
-        finally:
-            sp.USE_NUMBA = use_numba
-        _, peak = tracemalloc.get_traced_memory()
-        tracemalloc.stop()
-        out["peak_memory_mib"] = peak / 2**20
+        out["peak_memory_mib"] = _peak_memory_mib(rec, data["frames"][int(np.flatnonzero(ok)[0])])
     out["model_memory_mib"] = model_mib
     return out
+
+
+def _peak_memory_mib(rec, frames: dict) -> float:
+    """Peak memory (MiB) of one reconstruction of ``frames``, traced by tracemalloc.
+
+    numba's allocator is invisible to tracemalloc: the fast method's NumPy path is
+    measured instead (the same arrays).
+    """
+    from recon.errors import FrameError
+    import recon.subpixel as sp
+
+    if hasattr(rec, "reset"):
+        rec.reset()
+    use_numba = sp.USE_NUMBA
+    sp.USE_NUMBA = False
+    tracemalloc.start()
+    try:
+        rec(frames)
+    except FrameError:
+        pass
+    finally:
+        sp.USE_NUMBA = use_numba
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return peak / 2**20
 
 
 # ----------------------------------------------------------------------------- report
