@@ -597,9 +597,13 @@ def _coarse_foreground(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, b
     return mask, found, peak
 
 
-def _traced_path(mask: np.ndarray, rect: tuple, origin: tuple, coarse_shape: tuple, base: tuple) -> tuple:
+def _traced_path(mask: np.ndarray, rect: tuple, origin: tuple, coarse_shape: tuple, base: tuple,
+                 ahead=None) -> tuple:
     """The robot's path through its flood-filled region (``mask == 2``; ``rect`` = (sx, sy, sw, sh) in the
     coarse image, ``mask`` offset by ``origin`` = (rx0, ry0)), from the pixel nearest ``base`` (coarse px).
+    With ``ahead`` = (axis, margin): only the region's pixels less than ``margin`` (coarse px) behind the
+    base along the image ``axis`` (unit) of the insertion axis are traced (the robot leaves its base forward:
+    an outline of the actuation unit joined to the region must not lead the path away).
 
     Returns ``(path, g, region, x0p, y0p)``: (n, 2) (y, x) pixels of the grid pooled ``g`` x ``g``, start
     first; the region (coarse px) from ``(x0p, y0p)``.
@@ -613,6 +617,12 @@ def _traced_path(mask: np.ndarray, rect: tuple, origin: tuple, coarse_shape: tup
     x1p, y1p = min(wc, sx + sw + ((sx + sw) & 1)), min(hc, sy + sh + ((sy + sh) & 1))
     region = np.zeros((y1p - y0p, x1p - x0p), np.uint8)
     region[sy - y0p: sy - y0p + sh, sx - x0p: sx - x0p + sw] = mask[sy - ry0: sy - ry0 + sh, sx - rx0: sx - rx0 + sw] == 2
+    if ahead is not None:
+        axis, margin = ahead
+        yy, xx = np.mgrid[y0p:y1p, x0p:x1p]
+        behind = (xx - bx) * axis[0] + (yy - by) * axis[1] < -margin
+        if (region & ~behind).sum() >= 2:
+            region &= ~behind
     ph, pw = region.shape[0] // 2, region.shape[1] // 2
     if ph and pw:
         rr = region[: 2 * ph, : 2 * pw]
@@ -715,7 +725,13 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
     if roi is not None and (sx == 0 and rx0 > 0 or sy == 0 and ry0 > 0 or sx + sw == wr and rx1 < wc or sy + sh == hr and ry1 < hc):
         return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)  # outgrew the ROI
     sx, sy = sx + rx0, sy + ry0
-    path, g, region, x0p, y0p = _traced_path(mask, (sx, sy, sw, sh), (rx0, ry0), (hc, wc), (bx + rx0, by + ry0))
+    ahead = None
+    if model.start_px is None or np.allclose(model.start_px, model.base_px):
+        # The base in view: the path runs forward from it. Behind it by more than a tube diameter and 2 coarse
+        # px lies only what joined the region there (the actuation unit's outline flickering with jitter:
+        # wide-2-16 frame 1 followed it 300 px away from the tube).
+        ahead = (model.axis_px, max(3.0, 2.0 * model.outer_radius_px / f + 2.0))
+    path, g, region, x0p, y0p = _traced_path(mask, (sx, sy, sw, sh), (rx0, ry0), (hc, wc), (bx + rx0, by + ry0), ahead)
     # Out of view when the far end of the path (the robot's visible end) is at the image border. Only the
     # end counts: static edges flickering with camera jitter can join the region near the base and run to
     # the border (the actuation unit's outline, when few background frames teach the threshold), which
