@@ -478,3 +478,39 @@ def test_fuzz_scene_files(tmp_path, data):
     scene = _outcome_is_clean(load_scene, path, SceneError)
     if scene is not None:
         assert scene.joints and scene.rig.names == ["side", "top"]
+
+
+# The rig files and sequence files of `ctr-bench experiment` (docs/rig-file.md, docs/experiments.md).
+RIG_TOML = (SCENES / "rig-twin.toml").read_text()
+SEQUENCE_TOML = (SCENES / "paper-sequence.toml").read_text()
+
+
+def _mutated_toml(data, text: str) -> bytes:
+    if data.draw(st.booleans()):
+        return tomli_w.dumps(data.draw(mutated(tomllib.loads(text)))).encode()
+    return data.draw(corrupted(text))
+
+
+@_fuzz_settings(80)
+@given(data=st.data())
+def test_fuzz_rig_files(tmp_path, data):
+    from rig.rigfile import RigFileError, load_rig_file
+
+    (tmp_path / "paper.toml").write_text(PAPER_TOML)  # the scene the twin rig renders (relative to the file)
+    path = tmp_path / "rig.toml"
+    path.write_bytes(_mutated_toml(data, RIG_TOML))
+    rig = _outcome_is_clean(load_rig_file, path, (RigFileError, SceneError))
+    if rig is not None:
+        assert rig.n_tubes >= 1
+
+
+@_fuzz_settings(80)
+@given(data=st.data())
+def test_fuzz_sequence_files(tmp_path, data):
+    from rig.experiment import SequenceError, load_sequence
+
+    path = tmp_path / "sequence.toml"
+    path.write_bytes(_mutated_toml(data, SEQUENCE_TOML))
+    seq = _outcome_is_clean(load_sequence, path, SequenceError)
+    if seq is not None:
+        assert seq.steps
