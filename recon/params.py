@@ -15,6 +15,7 @@ import typing
 from pathlib import Path
 
 from .memory import carving_bytes, check_memory
+from .textfile import read_text
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -210,14 +211,7 @@ def read_params_file(path, method: str | None = None) -> dict:
     unreadable, is not TOML, or was written for another method than ``method``.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ValueError(f"{path}: parameter file not found") from None
-    except UnicodeDecodeError:
-        raise ValueError(f"{path}: not UTF-8 text (binary?), so not a TOML parameter file") from None
-    except (IsADirectoryError, PermissionError) as exc:
-        raise ValueError(f"{path}: cannot read the parameter file ({exc.__class__.__name__})") from None
+    text = read_text(path, "parameter", "TOML parameter file")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -18,6 +18,7 @@ import numpy as np
 from .calibration_check import CalibrationError, check_rig
 from .camera import Camera
 from .distortion import MODEL_SIZES
+from .textfile import parse_json, read_text
 
 __all__ = ["RigCalibration", "UnknownCameraError", "CalibrationError", "load_rig_calibration", "save_rig_calibration",
            "FORMAT_VERSION"]
@@ -222,18 +223,6 @@ def load_rig_calibration(path, cameras=None) -> RigCalibration:
         One line naming the file: missing, unreadable, not JSON, or not a usable calibration.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise CalibrationError(f"{path}: rig calibration file not found") from None
-    except UnicodeDecodeError:
-        raise CalibrationError(f"{path}: not UTF-8 text (binary?), so not a rig calibration JSON file") from None
-    except (IsADirectoryError, PermissionError) as exc:
-        raise CalibrationError(f"{path}: cannot read the rig calibration ({exc.__class__.__name__})") from None
-    try:
-        d = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise CalibrationError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    except RecursionError:
-        raise CalibrationError(f"{path}: not valid JSON (nested too deeply)") from None
+    text = read_text(path, "rig calibration", "rig calibration JSON file", CalibrationError)
+    d = parse_json(text, path, CalibrationError)
     return RigCalibration.from_dict(d, source=str(path), cameras=cameras)

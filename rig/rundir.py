@@ -159,11 +159,17 @@ def write_summary_json(path, head: dict, record_lines: list) -> None:
 
 def _write_text_atomic(path, text: str) -> None:
     """Write ``text`` under a temporary name and rename it; a failure names ``path`` and leaves the old file."""
+    _write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def _write_bytes_atomic(path, data: bytes, suffix: str = ".tmp") -> None:
+    """Write ``data`` under a temporary name (``.NAME`` + ``suffix``) and rename it; a failure names ``path``
+    and leaves the old file."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = path.with_name(f".{path.name}{suffix}")
     with writing(path):
         try:
-            tmp.write_text(text)
+            tmp.write_bytes(data)
             os.replace(tmp, path)
         except OSError:
             tmp.unlink(missing_ok=True)
@@ -442,14 +448,7 @@ def write_backbones_npz(path, backbones: dict) -> str:
     np.savez_compressed(buf, frames=np.array(sorted(backbones), dtype=np.int64),
                         **{f"frame_{i:06d}": p for i, p in backbones.items()})
     data = buf.getvalue()
-    tmp = path.with_name(f".{path.name}.tmp.npz")
-    with writing(path):
-        try:
-            tmp.write_bytes(data)
-            os.replace(tmp, path)
-        except OSError:
-            tmp.unlink(missing_ok=True)
-            raise
+    _write_bytes_atomic(path, data, ".tmp.npz")
     return hashlib.sha1(data).hexdigest()
 
 

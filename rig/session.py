@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from recon.rigcal import RigCalibration, load_rig_calibration, save_rig_calibration
+from recon.textfile import parse_json
 
 from .session_checks import (FrameRecord, SessionError, TruthError, check_cameras, check_meta, check_truth, frame_columns,
                              load_truth, parse_frames_csv, read_text, tube_radii_mm)
@@ -348,12 +349,7 @@ def _read_meta(path: Path) -> dict:
         text = read_text(path)
     except FileNotFoundError:
         raise SessionError(f"{path.parent}: no session.json (not a ctr-bench session directory)") from None
-    try:
-        meta = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise SessionError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-    except RecursionError:
-        raise SessionError(f"{path}: not valid JSON (nested too deeply)") from None
+    meta = parse_json(text, path, SessionError)
     check_meta(meta, path, FORMAT, VERSION)
     return meta
 

@@ -18,27 +18,18 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from recon.camera import Camera, look_at
 from recon.rigcal import RigCalibration
-from rig.session import FrameRecord, Session, SessionError, SessionWriter, TruthError, read_image
+from rig.session import FrameRecord, Session, SessionError, TruthError, read_image
 from rig.session_checks import MAX_TUBES, frame_columns
+from tiny_session import H, N_POINTS, W, tiny_backbone, write_tiny_session
 
-W, H = 32, 24
 N_FRAMES = 3
-N_POINTS = 20
 LONG = os.environ.get("HYPOTHESIS_PROFILE") == "long"
 
 
-def _rig() -> RigCalibration:
-    K = np.array([[40.0, 0, (W - 1) / 2], [0, 40.0, (H - 1) / 2], [0, 0, 1]])
-    side = Camera("side", W, H, K, dist=np.zeros(5), T_cam_world=look_at([35, -300, 0], [35, 0, 0], [0, 0, -1]))
-    top = Camera("top", W, H, K, dist=np.zeros(5), T_cam_world=look_at([35, 0, 300], [35, 0, 0], [0, -1, 0]))
-    return RigCalibration({"side": side, "top": top})
-
-
 def _truth(rig: RigCalibration, f: int) -> dict:
+    bb = tiny_backbone(f)
     s = np.linspace(0.0, 40.0 + f, N_POINTS)
-    bb = np.stack([s, 0.004 * s**2, np.zeros_like(s)], axis=1)
     out = {"s_mm": s, "backbone_world_mm": bb, "tip_world_mm": bb[-1], "extension_mm": np.array([30.0, 40.0 + f]),
            "rotation_deg": np.array([0.0, 10.0 * f])}
     for c in rig.names:
@@ -48,24 +39,10 @@ def _truth(rig: RigCalibration, f: int) -> dict:
     return out
 
 
-class _Joints:
-    def __init__(self, f: int):
-        self.extension_mm, self.rotation_deg = (30.0, 40.0 + f), (0.0, 10.0 * f)
-
-
 @pytest.fixture(scope="module")
 def template(tmp_path_factory) -> Path:
     """A valid session: 2 cameras, 2 tubes, 6 background pairs, 3 frames with joints and ground truth."""
-    rig = _rig()
-    d = tmp_path_factory.mktemp("template") / "session"
-    img = np.full((H, W), 200, np.uint8)
-    meta = {"robot": {"tubes": [{"outer_diameter_mm": 1.6}, {"outer_diameter_mm": 1.0}]}}
-    with SessionWriter(d, rig, source="twin", n_tubes=2, meta=meta) as w:
-        for b in range(6):
-            w.add_background(b, {c: img for c in rig.names})
-        for f in range(N_FRAMES):
-            w.add_frame(f, {c: img for c in rig.names}, t_s=0.1 * f, joints=_Joints(f), truth=_truth(rig, f))
-    return d
+    return write_tiny_session(tmp_path_factory.mktemp("template") / "session", N_FRAMES, _truth)
 
 
 @pytest.fixture

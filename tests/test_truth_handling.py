@@ -15,47 +15,16 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from recon.camera import Camera, look_at
-from recon.rigcal import RigCalibration
 from rig import widebench
 from rig.commands import bench
-from rig.session import Session, SessionWriter
-
-W, H = 32, 24
-N_POINTS = 20
-
-
-def _rig() -> RigCalibration:
-    K = np.array([[40.0, 0, (W - 1) / 2], [0, 40.0, (H - 1) / 2], [0, 0, 1]])
-    side = Camera("side", W, H, K, dist=np.zeros(5), T_cam_world=look_at([35, -300, 0], [35, 0, 0], [0, 0, -1]))
-    top = Camera("top", W, H, K, dist=np.zeros(5), T_cam_world=look_at([35, 0, 300], [35, 0, 0], [0, -1, 0]))
-    return RigCalibration({"side": side, "top": top})
-
-
-def _backbone(f: int) -> np.ndarray:
-    s = np.linspace(0.0, 40.0 + f, N_POINTS)
-    return np.stack([s, 0.004 * s**2, np.zeros_like(s)], axis=1)
-
-
-class _Joints:
-    def __init__(self, f: int):
-        self.extension_mm, self.rotation_deg = (30.0, 40.0 + f), (0.0, 10.0 * f)
-
+from rig.session import Session
+from tiny_session import tiny_backbone, tiny_rig, write_tiny_session
 
 @pytest.fixture(scope="module")
 def template(tmp_path_factory) -> Path:
     """A valid session: 2 cameras, 2 tubes, 6 background pairs, 4 frames with ground truth."""
-    rig = _rig()
-    d = tmp_path_factory.mktemp("truth") / "session"
-    img = np.full((H, W), 200, np.uint8)
-    meta = {"robot": {"tubes": [{"outer_diameter_mm": 1.6}, {"outer_diameter_mm": 1.0}]}}
-    with SessionWriter(d, rig, source="twin", n_tubes=2, meta=meta) as w:
-        for b in range(6):
-            w.add_background(b, {c: img for c in rig.names})
-        for f in range(4):
-            w.add_frame(f, {c: img for c in rig.names}, t_s=0.1 * f, joints=_Joints(f),
-                        truth={"backbone_world_mm": _backbone(f)})
-    return d
+    return write_tiny_session(tmp_path_factory.mktemp("truth") / "session", 4,
+                              lambda rig, f: {"backbone_world_mm": tiny_backbone(f)})
 
 
 def _spoil(d: Path, frames=(1, 2, 3)) -> dict:
@@ -66,7 +35,7 @@ def _spoil(d: Path, frames=(1, 2, 3)) -> dict:
     if 2 in paths:
         paths[2].write_bytes(b"this is not an npz archive")
     if 3 in paths:
-        np.savez(paths[3], backbone_world_mm=_backbone(3)[:, :2])
+        np.savez(paths[3], backbone_world_mm=tiny_backbone(3)[:, :2])
     return paths
 
 
@@ -106,7 +75,7 @@ def test_score_run_carries_the_reconstruct_note(template):
     rec = {"frame": 0, "status": "failed", "reason": "no silhouette", "note": "not scored: something"}
     row, = widebench.score_run({"per_frame": [rec]}, Session(template), "s", "fast", {})
     assert row["note"] == "not scored: something"  # frame 0's truth is good: the summary's own note stays
-    fake = SimpleNamespace(rig=_rig(), dir=template, truth=lambda i: None)  # a session without ground truth
+    fake = SimpleNamespace(rig=tiny_rig(), dir=template, truth=lambda i: None)  # a session without ground truth
     row, = widebench.score_run({"per_frame": [rec]}, fake, "s", "fast", {})
     assert row["note"] == f"not scored: {template}: the session has no ground truth"
 
@@ -140,7 +109,7 @@ def test_bench_keeps_every_frame_and_notes_the_bad_truths(spoiled, monkeypatch, 
 
         def __call__(self, frames):
             self.k += 1
-            return SimpleNamespace(points_world_mm=_backbone(self.k - 1))
+            return SimpleNamespace(points_world_mm=tiny_backbone(self.k - 1))
 
     monkeypatch.setattr(bench, "make_method", lambda *a, **k: _Perfect())
     out = bench.run_method("fast", data, repeats=1, memory=False)
