@@ -48,7 +48,7 @@ _CARVE_BYTES_PER_SURVIVOR = 96
 _RENDER_BASE = 300e6
 _RENDER_BYTES_PER_PX = 200
 
-# Reconstruction (rig.reconstruct, both cameras): peak RSS of `ctr-bench reconstruct` on
+# Reconstruction (rig.bench.reconstruct, both cameras): peak RSS of `ctr-bench reconstruct` on
 # 1024^2 and 2048^2 twin sessions with 10 and 30 background frames is ~260 MB plus
 # ~115 bytes per pixel (fast; paper ~100) plus ~13 bytes per pixel per background frame
 # (the eigenbackground stacks).

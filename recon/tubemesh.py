@@ -5,7 +5,7 @@ backbone point, in the plane whose normal is the direction of the curve there, a
 consecutive circles are joined by quadrilateral "patches" (two triangles each). The
 ends are closed by fans, so the mesh is watertight.
 
-Numpy only; exporters (PLY, OBJ, glTF) live in ``rig/meshes.py``.
+Numpy only; exporters (PLY, OBJ, glTF) live in ``rig/bench/meshes.py``.
 
 Conventions: points in any length unit (world mm in ctr-bench), ordered base to tip;
 faces are wound so that their normals point outwards.

@@ -4,7 +4,7 @@
 images with the reprojected reconstruction and truth, the 3D backbones and the errors.
 It needs the optional extra ``live`` (``pip install 'ctr-bench[live]'``, i.e. rerun-sdk,
 a large download); without it a one-line message says so and the run goes on — the
-static report (``rig/report.py``) never needs it.
+static report (``rig/bench/report.py``) never needs it.
 
 The data to log is prepared by :func:`prepare_frame` (plain numpy, testable without
 rerun); :class:`LiveLogger` sends it.
@@ -16,8 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .backbone_csv import read_backbone_csv
-from .rundir import JOURNAL, last_journal_record
+from rig.backbone_csv import read_backbone_csv
+from rig.rundir import JOURNAL, last_journal_record
+from rig.session import read_image
 
 __all__ = ["LiveLogger", "prepare_frame", "import_rerun", "NOT_INSTALLED"]
 
@@ -168,8 +169,6 @@ class LiveLogger:
         return callback
 
     def _log_latest(self, session_dir: Path, out_dir: Path, rig) -> None:
-        from rig.session import read_image
-
         r = last_journal_record(out_dir / JOURNAL)
         if r is None or r["frame"] in self._logged:
             return

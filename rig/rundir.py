@@ -23,6 +23,7 @@ aborted write.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import io
 import json
@@ -36,7 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SUMMARY", "JOURNAL", "TABLE", "BACKBONES", "FRAMES_DIR", "RunDirError", "WriteError", "writing",
+from recon.params import params_to_dict
+from recon.selfcheck import SelfCheckParams
+
+__all__ = ["summarize", "params_as_dict", "finite_or_none", "SUMMARY", "JOURNAL", "TABLE", "BACKBONES", "FRAMES_DIR", "RunDirError", "WriteError", "writing",
            "json_safe", "json_text", "write_json_atomic", "write_summary_json", "new_run_id", "earlier_files", "remove_files",
            "check_claim", "journal_header", "Journal", "read_journal", "read_summary", "write_backbones_npz", "read_backbones_npz",
            "MODES"]
@@ -483,3 +487,94 @@ def read_backbones_npz(path, sha1: str | None = None, frames=None) -> dict:
             return {int(k[6:]): np.asarray(z[k], float).reshape(-1, 3) for k in keys}
     except (OSError, ValueError, KeyError, EOFError) as exc:
         raise ValueError(f"{path}: unreadable ({type(exc).__name__}: {' '.join(str(exc).split())})") from None
+
+
+def finite_or_none(x):
+    """JSON has no NaN: report unknown values as null."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def _error_aggregates(records: list) -> dict:
+    """Error aggregates (mm) over the scored frames among ``records``."""
+    scored = [r for r in records if r.get("mean_error_mm") is not None]
+
+    def agg(key, fn):
+        vals = np.array([r[key] for r in scored], float)
+        return finite_or_none(fn(vals)) if vals.size else None
+
+    return {
+        "scored_frames": len(scored),
+        "mean_error_mm": agg("mean_error_mm", np.mean),
+        "max_error_mm": agg("max_error_mm", np.max),
+        "tip_error_mm_median": agg("tip_error_mm", np.median),
+        "tip_error_mm_max": agg("tip_error_mm", np.max),
+        "length_error_mm_median": agg("length_error_mm", np.median),
+    }
+
+
+def params_as_dict(params):
+    """A parameter dataclass as a dict (a dict, e.g. read back from a journal, or None as it is)."""
+    return params_to_dict(params) if dataclasses.is_dataclass(params) else params
+
+
+def summarize(records: list, method: str, params, session_dir, mm_px: float, selfcheck: SelfCheckParams | None = None,
+              run_id: str | None = None, complete: bool = False, files: dict | None = None, session_notes=()) -> dict:
+    """Aggregate per-frame records into the summary.json document.
+
+    Error and time aggregates are over the ``ok`` frames (as before the
+    self-check existed); ``reconstructed`` holds the same over ``ok`` and
+    ``suspect`` frames together. ``params`` and ``selfcheck`` are dataclasses
+    or their dicts. With a ``run_id`` the summary also names the run, whether
+    it is ``complete`` and the ``files`` it wrote (default: the journal and the
+    table; :class:`RunWriter` adds ``backbones`` and ``backbones_sha1`` at the end).
+    ``session_notes`` are what reading the session forgave (a frames.csv row
+    cut short by a crash), kept in the summary so that nothing is dropped unsaid.
+    """
+    ok = [r for r in records if r["status"] == "ok"]
+    suspect = [r for r in records if r["status"] == "suspect"]
+    done = [r for r in records if r["status"] in ("ok", "suspect")]
+    errors = _error_aggregates(ok)
+    ms = np.array([r["ms"] for r in ok]) if ok else np.array([])
+    ms_done = np.array([r["ms"] for r in done]) if done else np.array([])
+    # Largest voxel edge of each frame (methods that carve voxels).
+    voxel = np.array([max(r["voxel_size_mm"]) for r in ok if r.get("voxel_size_mm")], float)
+    check_ms = np.array([r["selfcheck"]["ms"] for r in done if (r.get("selfcheck") or {}).get("ms") is not None], float)
+
+    run = {} if run_id is None else {
+        "run_id": run_id, "complete": bool(complete),
+        "files": files or {"journal": JOURNAL, "table": TABLE, "backbones": None, "backbones_sha1": None},
+    }
+    return {
+        "format": "ctr-bench-summary",
+        "version": 1,
+        **run,
+        "method": method,
+        "params": params_as_dict(params),
+        "session": str(session_dir),
+        "session_notes": list(session_notes),
+        "frames": len(records),
+        "ok_frames": len(ok),
+        "suspect_frames": len(suspect),
+        "failed_frames": sum(r["status"] == "failed" for r in records),
+        "jump_frames": sum(bool(r.get("jump_flag")) for r in records),
+        "suspect_list": [r["frame"] for r in suspect],
+        "mm_per_px": mm_px,
+        **errors,
+        "reconstructed": {
+            "frames": len(done),
+            **_error_aggregates(done),
+            "ms_per_pair_median": finite_or_none(np.median(ms_done)) if ms_done.size else None,
+            "ms_per_pair_p95": finite_or_none(np.percentile(ms_done, 95)) if ms_done.size else None,
+        },
+        "selfcheck": params_as_dict(selfcheck),
+        "selfcheck_ms_median": finite_or_none(np.median(check_ms)) if check_ms.size else None,
+        "selfcheck_ms_max": finite_or_none(np.max(check_ms)) if check_ms.size else None,
+        "voxel_edge_mm_median": finite_or_none(np.median(voxel)) if voxel.size else None,
+        "voxel_edge_mm_max": finite_or_none(np.max(voxel)) if voxel.size else None,
+        "ms_per_pair_median": finite_or_none(np.median(ms)) if ms.size else None,
+        "ms_per_pair_p95": finite_or_none(np.percentile(ms, 95)) if ms.size else None,
+        "per_frame": records,
+    }

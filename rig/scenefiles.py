@@ -40,3 +40,8 @@ def scene_path(*parts: str) -> Path:
     names a missing file.
     """
     return scenes_dir().joinpath(*parts)
+
+
+#: The scene run, render and bench use without a SCENE: the bundled paper scene (a checkout's
+#: scenes/paper.toml, a wheel's rig/scenes/paper.toml; rig/scenefiles.py).
+DEFAULT_SCENE = scene_path("paper.toml")

@@ -18,11 +18,22 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from recon.memory import MemoryBoundError, check_memory, reconstruction_bytes
 from recon.rigcal import RigCalibration, load_rig_calibration, save_rig_calibration
 from recon.textfile import parse_json
-
-from .session_checks import (FrameRecord, SessionError, TruthError, check_cameras, check_meta, check_truth, frame_columns,
-                             load_truth, parse_frames_csv, read_text, tube_radii_mm)
+from rig.session_checks import (
+    FrameRecord,
+    SessionError,
+    TruthError,
+    check_cameras,
+    check_meta,
+    check_truth,
+    frame_columns,
+    load_truth,
+    parse_frames_csv,
+    read_text,
+    tube_radii_mm,
+)
 
 __all__ = ["SessionWriter", "Session", "SessionError", "TruthError", "FrameRecord", "FORMAT", "VERSION", "read_image"]
 
@@ -246,8 +257,6 @@ class Session:
         The estimate is that of the largest camera's frames with its background frames; the
         message names rig.json's camera and the figure (``CTR_BENCH_MEMORY_LIMIT_GB`` raises the limit).
         """
-        from recon.memory import MemoryBoundError, check_memory, reconstruction_bytes
-
         cam = max((self.rig[c] for c in self.cameras), key=lambda c: c.width * c.height)
         n_bg = len(self.background_paths(cam.name))
         try:

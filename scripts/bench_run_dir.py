@@ -3,13 +3,13 @@
     .venv/bin/python scripts/bench_run_dir.py bookkeeping --n 10000
     .venv/bin/python scripts/bench_run_dir.py reconstruct --n 10000 --method fast
 
-``bookkeeping`` feeds :class:`rig.reconstruct.RunWriter` (backbone CSV, journal
+``bookkeeping`` feeds :class:`rig.bench.reconstruct.RunWriter` (backbone CSV, journal
 line, frames.csv row per frame; summary.json every few seconds) one realistic
 record and backbone N times: the cost a run adds to each frame's
 reconstruction. ``--every-frame`` rewrites summary.json after every frame, as
 runs did before the journal, for comparison.
 
-``reconstruct`` runs :func:`rig.reconstruct.reconstruct_session` on a session
+``reconstruct`` runs :func:`rig.bench.reconstruct.reconstruct_session` on a session
 of N frames repeating one rendered frame of scenes/paper.toml (hard links, so
 the images take no room), timed between successive progress calls.
 
@@ -65,7 +65,7 @@ def _print_summaries(writes: list) -> None:
 
 def bookkeeping(n: int, out: Path, every_frame: bool) -> list:
     """Seconds per frame of the run's bookkeeping over ``n`` frames."""
-    import rig.reconstruct as rr
+    import rig.bench.reconstruct as rr
     from rig.rundir import journal_header
 
     if every_frame:
@@ -90,7 +90,7 @@ def _long_session(directory: Path, n: int) -> Path:
     """A session of ``n`` frames repeating one rendered frame of the paper scene (PNG hard links, copied rows)."""
     from dataclasses import replace
 
-    from rig.commands.render import render_scene_to
+    from rig.bench.scenes import render_scene_to
     from twin.scene import load_scene
 
     scene = load_scene(ROOT / "scenes" / "paper.toml")
@@ -114,7 +114,7 @@ def reconstruct(n: int, out: Path, method: str, selfcheck: bool) -> list:
     """Seconds per frame (reconstruction and bookkeeping) of ``reconstruct_session`` over ``n`` frames."""
     import cv2
 
-    import rig.reconstruct as rr
+    import rig.bench.reconstruct as rr
     from recon.selfcheck import SelfCheckParams
 
     cv2.setNumThreads(1)

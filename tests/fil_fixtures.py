@@ -1,6 +1,6 @@
 """Fixtures for the firmware-in-the-loop tests (tests/test_firmware.py).
 
-* ``fil_build``   (session): builds rig/firmware and rig/sim with make into a
+* ``fil_build``   (session): builds rig/hw/firmware and rig/hw/sim with make into a
   temporary directory; skips only when avr-gcc is not installed.
 * ``sim_factory`` (function): starts ``ctr_sim`` (the firmware on an emulated
   ATmega328P with the motor/encoder plants, serial port on a pty) and returns
@@ -24,8 +24,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-FW_DIR = ROOT / "rig" / "firmware"
-SIM_DIR = ROOT / "rig" / "sim"
+FW_DIR = ROOT / "rig" / "hw" / "firmware"
+SIM_DIR = ROOT / "rig" / "hw" / "sim"
 
 __all__ = ["fil_build", "sim_factory", "SimHarness", "FilBuild", "TLine"]
 

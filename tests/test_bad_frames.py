@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from recon.background import EigenBackgroundParams
-from rig.reconstruct import format_table, reconstruct_session
+from rig.bench.reconstruct import format_table, reconstruct_session
 from rig.session import Session, SessionError, SessionWriter
 from twin.record import robot_to_dict, truth_arrays
 from twin.robot import Joints
@@ -137,7 +137,7 @@ def test_too_few_background_frames_is_a_set_up_error(bad_session, tmp_path):
 
 def test_summary_json_writes_non_finite_figures_as_null(tmp_path):
     """JSON has no NaN or inf: an unknown figure or a limit that is off is null, never an aborted write."""
-    from rig.reconstruct import write_json_atomic
+    from rig.rundir import write_json_atomic
 
     path = tmp_path / "summary.json"
     write_json_atomic(path, {"limit": float("inf"), "fig": np.float64("nan"), "pts": np.array([1.0, -np.inf]), "n": np.int64(3),

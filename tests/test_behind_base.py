@@ -47,7 +47,7 @@ SCENE = scene_path("tune", "dim-flicker.toml")
 
 @pytest.fixture(scope="module")
 def dim_session(tmp_path_factory):
-    from rig.tune import load_tune_sessions
+    from rig.bench.tune import load_tune_sessions
 
     (s,) = load_tune_sessions([SCENE], tmp_path_factory.mktemp("cache"), log=lambda *_: None)
     return s

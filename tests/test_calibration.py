@@ -402,7 +402,7 @@ def test_reconstruction_with_calibrated_rig_is_as_good_as_with_true_rig(calibrat
     """Issue 5: scenes/paper.toml reconstructed with the calibrated rig has errors within 1.2x of the true rig's."""
     from dataclasses import replace as dc_replace
 
-    from rig.reconstruct import reconstruct_session
+    from rig.bench.reconstruct import reconstruct_session
     from rig.session import SessionWriter
     from twin.record import render_session
 

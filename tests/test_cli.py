@@ -75,7 +75,7 @@ def test_an_option_name_means_one_thing_in_every_command(option, metavar):
 
 
 def test_counts_and_frame_lists_are_parsed_by_one_parser_each(capsys):
-    from rig.commands.options import parse_frames
+    from rig.cli.options import parse_frames
 
     counts = [a for opt in ("--n-frames", "--n-background-frames") for _, a in _options()[opt]]
     assert {a.type.__qualname__ for a in counts} == {"count.<locals>.parse"}
@@ -91,8 +91,8 @@ def test_counts_and_frame_lists_are_parsed_by_one_parser_each(capsys):
 
 
 def test_every_method_option_checks_its_names_when_read():
-    from rig.commands.bench import method_list
-    from rig.commands.reconstruct import method_name
+    from rig.cli.commands.bench import method_list
+    from rig.cli.options import method_name
 
     uses = _options()
     assert {a.type for _, a in uses["--method"]} == {method_name}

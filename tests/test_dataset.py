@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-import rig.commands.render as render_cmd
-import rig.dataset as dataset
+import rig.bench.render_cache as render_cache
+import rig.bench.dataset as dataset
 from rig.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,7 +37,7 @@ def _no_render(monkeypatch):
     def fail(*a, **k):
         raise AssertionError("rendered although the scene is cached")
 
-    monkeypatch.setattr(render_cmd, "render_scene_to", fail)
+    monkeypatch.setattr(render_cache, "render_scene_to", fail)
 
 
 @pytest.fixture(scope="module")
@@ -120,7 +120,7 @@ def test_labels_agree_with_the_truth_centerlines(built):
 
 def test_labels_are_the_truths(built):
     """The label PNGs hold the session's truth labels exactly (the only part of these tests that reads with ctr-bench)."""
-    from rig.render_cache import cached_session
+    from rig.bench.render_cache import cached_session
     from rig.session import Session
     from twin.scene import load_scene
 

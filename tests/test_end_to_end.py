@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from rig.backbone_csv import read_backbone_csv
-from rig.commands.render import render_scene_to
-from rig.reconstruct import reconstruct_session
+from rig.bench.scenes import render_scene_to
+from rig.bench.reconstruct import reconstruct_session
 
 # Two inserted frames (inner tube 5 and 45 mm out of the outer one) and a rotated one.
 FRAMES = (0, 9, 15)

@@ -3,7 +3,7 @@
 * the twin experiment's live reconstruction equals ``ctr-bench reconstruct`` of its session;
 * a run killed with SIGKILL keeps every frame committed before the kill;
 * the same sequence file runs on the twin actuator and on the Arduino firmware in the
-  emulator (rig/sim) -- only the rig file differs;
+  emulator (rig/hw/sim) -- only the rig file differs;
 * the OpenCV backend reads a video file; the replay backend replays a session;
 * rig-file and sequence-file errors name the file and the key;
 * CameraPair measures the skew between the cameras and frames.csv records it.
@@ -30,14 +30,14 @@ try:                                    # tests/ as a package or as a rootdir
 except ImportError:
     from fil_fixtures import *  # noqa: F401,F403
 
-from rig.actuator import JointValues, SoftLimits
-from rig.camera import Camera, CameraError, CameraPair, EndOfStream, OpenCVCamera
+from rig.hw.actuator import JointValues, SoftLimits
+from rig.hw.camera import Camera, CameraError, CameraPair, EndOfStream, OpenCVCamera
 from rig.cli import main as cli
-from rig.experiment import ExperimentRunner, SequenceError, load_sequence
-from rig.rigfile import RigFileError, load_rig_file, rig_file_from_dict
+from rig.hw.experiment import ExperimentRunner, SequenceError, load_sequence
+from rig.hw.rigfile import RigFileError, load_rig_file, rig_file_from_dict
 from rig.scenefiles import scenes_dir
 from rig.session import Session
-from rig.virtual import Trapezoid, TwinActuator
+from rig.hw.virtual import Trapezoid, TwinActuator
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = scenes_dir()
@@ -235,7 +235,7 @@ def test_sigkill_keeps_committed_frames(files, tmp_path):
         imgs = s.frame_images(fr.index)
         assert set(imgs) == {"side", "top"} and imgs["side"].shape == (768, 1024)
         assert s.truth(fr.index) is not None
-    from rig.reconstruct import reconstruct_session
+    from rig.bench.reconstruct import reconstruct_session
 
     summary = reconstruct_session(out, tmp_path / "rec", method="paper")
     assert summary["frames"] == n and summary["failed_frames"] < n
@@ -270,8 +270,8 @@ def test_interrupt_stops_actuator_and_keeps_frames(twin_session, tmp_path):
 
     with pytest.raises(KeyboardInterrupt):
         with spec.open() as rig:
-            orig = rig.actuator.stop
-            rig.actuator.stop = lambda: (stopped.append(True), orig())[1]
+            orig = rig.hw.actuator.stop
+            rig.hw.actuator.stop = lambda: (stopped.append(True), orig())[1]
             ExperimentRunner(rig, seq, tmp_path / "out", log=lambda s: None, on_frame=interrupt).run()
     assert stopped, "leaving the rig block must stop the actuator"
     s = Session(tmp_path / "out")
@@ -509,7 +509,7 @@ def test_sequence_errors_name_file_and_key(tmp_path):
         with pytest.raises(SequenceError) as ei:
             seq = load_sequence(p)
             if limits is not None:
-                from rig.experiment import check_limits
+                from rig.hw.experiment import check_limits
 
                 check_limits(seq, limits)
         assert str(p) in str(ei.value) and match in str(ei.value), ei.value
@@ -540,7 +540,7 @@ def test_example_files_load():
     assert lab.cameras["kind"] == "opencv" and "dc1394src" in lab.cameras["per_camera"]["side"]["source"]
     assert lab.actuator["port"] == "/dev/ttyACM0"
     seq = load_sequence(SCENES / "paper-sequence.toml")
-    from rig.experiment import check_limits, grab_targets
+    from rig.hw.experiment import check_limits, grab_targets
 
     for spec in (twin, ard, lab):
         check_limits(seq, spec.limits)

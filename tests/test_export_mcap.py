@@ -29,7 +29,7 @@ def test_export_round_trip(run_dir, tmp_path):
     import json
 
     from recon.rigcal import load_rig_calibration
-    from rig.mcap_export import export_mcap
+    from rig.bench.mcap_export import export_mcap
 
     out = tmp_path / "run.mcap"
     counts = export_mcap(run_dir, out)
@@ -97,7 +97,7 @@ def test_cli_export_and_its_errors(run_dir, tmp_path, capsys):
 
 
 def test_export_without_its_session_says_so(tmp_path):
-    from rig.mcap_export import export_mcap
+    from rig.bench.mcap_export import export_mcap
 
     bare = make_run_dir(tmp_path, with_session=False)
     with pytest.raises(ValueError, match="session"):

@@ -1,15 +1,15 @@
 """Actuator firmware + driver tests.
 
-1. Pure protocol tests (rig.arduino.Protocol & co., rig.actuator) -- no
+1. Pure protocol tests (rig.hw.arduino.Protocol & co., rig.hw.actuator) -- no
    hardware, always run.
-2. Firmware-in-the-loop tests: the real firmware (rig/firmware) runs on an
-   emulated ATmega328P (rig/sim/ctr_sim, libsimavr) with simulated motors,
+2. Firmware-in-the-loop tests: the real firmware (rig/hw/firmware) runs on an
+   emulated ATmega328P (rig/hw/sim/ctr_sim, libsimavr) with simulated motors,
    encoders and home switch; ArduinoActuator talks to it over a pty.  The
    harness prints the simulated time, plant encoder counts and PWM outputs,
    which is what the latency measurements below use.  Skipped only when
    avr-gcc is missing.
 
-   The driver attaches to the emulator's clock channel (rig.arduino.EmulatorClock):
+   The driver attaches to the emulator's clock channel (rig.hw.arduino.EmulatorClock):
    its heartbeats lease the emulator simulated time and its timeouts count
    simulated time, so these tests hold on a loaded machine; the real-time
    semantics of a real Uno (clock="real", no lease) are checked too.
@@ -27,14 +27,14 @@ from unittest import mock
 
 import pytest
 
-from rig.actuator import (
+from rig.hw.actuator import (
     ActuatorError,
     ActuatorResetError,
     FirmwareError,
     JointValues,
     SoftLimits,
 )
-from rig.arduino import (
+from rig.hw.arduino import (
     ArduinoActuator,
     EmulatorClock,
     Frame,
@@ -180,7 +180,7 @@ class TestSoftLimits:
             JointValues.coerce({"rotation_deg": 1})
 
 
-# the firmware's own parser (rig/firmware/protocol.c, pure C) built for the
+# the firmware's own parser (rig/hw/firmware/protocol.c, pure C) built for the
 # host and driven through ctypes: differential test against Protocol
 _GLUE = r'''
 #include <stdio.h>
@@ -217,7 +217,7 @@ def cproto(tmp_path_factory):
     cc = shutil.which("gcc") or shutil.which("cc")
     if cc is None:
         pytest.skip("no host C compiler")
-    fw = Path(__file__).resolve().parents[1] / "rig" / "firmware"
+    fw = Path(__file__).resolve().parents[1] / "rig" / "hw" / "firmware"
     d = tmp_path_factory.mktemp("cproto")
     (d / "glue.c").write_text(_GLUE)
     so = d / "libproto.so"

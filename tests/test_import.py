@@ -40,7 +40,7 @@ def twin(tmp_path_factory):
     """scenes/paper.toml's first robot frames and a few background frames, rendered into a session."""
     from dataclasses import replace
 
-    from rig.commands.render import render_scene_to
+    from rig.bench.scenes import render_scene_to
     from twin.scene import load_scene
 
     scene = load_scene(SCENE)

@@ -494,7 +494,7 @@ def _mutated_toml(data, text: str) -> bytes:
 @_fuzz_settings(80)
 @given(data=st.data())
 def test_fuzz_rig_files(tmp_path, data):
-    from rig.rigfile import RigFileError, load_rig_file
+    from rig.hw.rigfile import RigFileError, load_rig_file
 
     (tmp_path / "paper.toml").write_text(PAPER_TOML)  # the scene the twin rig renders (relative to the file)
     path = tmp_path / "rig.toml"
@@ -507,7 +507,7 @@ def test_fuzz_rig_files(tmp_path, data):
 @_fuzz_settings(80)
 @given(data=st.data())
 def test_fuzz_sequence_files(tmp_path, data):
-    from rig.experiment import SequenceError, load_sequence
+    from rig.hw.experiment import SequenceError, load_sequence
 
     path = tmp_path / "sequence.toml"
     path.write_bytes(_mutated_toml(data, SEQUENCE_TOML))

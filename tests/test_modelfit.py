@@ -222,7 +222,7 @@ def test_bad_inputs_give_one_line_errors(bending_data, plastic, nominal, tmp_pat
 
 
 def test_believed_session_records_nominal_robot_and_commanded_joints(tmp_path):
-    from rig.commands.fit import render_believed_session
+    from rig.bench.scenes import render_believed_session
     from rig.session import Session
 
     out = render_believed_session(SCENES / "plastic.toml", tmp_path / "s", SCENES / "plastic-nominal.toml",

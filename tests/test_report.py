@@ -1,4 +1,4 @@
-"""The run report (rig/report.py), tube meshes (recon/tubemesh.py, rig/meshes.py) and the live view's fallback (rig/live.py).
+"""The run report (rig/bench/report.py), tube meshes (recon/tubemesh.py, rig/bench/meshes.py) and the live view's fallback (rig/live.py).
 
 The run directories here are synthetic (a small session written with the session
 writer, a hand-made summary), so these tests do not depend on any reconstruction method.
@@ -97,7 +97,7 @@ def make_run_dir(root: Path, with_session: bool = True) -> Path:
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory) -> Path:
     """A synthetic run directory with its report (and meshes) built once."""
-    from rig.report import build_report
+    from rig.bench.report import build_report
 
     out = make_run_dir(tmp_path_factory.mktemp("report"))
     build_report(out, meshes=True)
@@ -134,7 +134,7 @@ def test_report_builds_with_valid_images(run_dir):
 
 
 def test_overlay_marks_reconstruction_and_truth(run_dir):
-    from rig.report import RECON_RGB, TRUTH_RGB
+    from rig.bench.report import RECON_RGB, TRUTH_RGB
 
     img = np.asarray(Image.open(run_dir / "report" / "frames" / "000001.png").convert("RGB")).astype(int)
     for rgb in (RECON_RGB, TRUTH_RGB):
@@ -181,7 +181,7 @@ def test_cli_rebuilds_and_runs_without_session(tmp_path, capsys):
 @pytest.mark.parametrize("spoil", ["corrupt", "two_columns"])
 def test_a_bad_truth_file_is_a_note_not_the_end_of_the_report(tmp_path, spoil):
     # One corrupt or malformed truth npz used to stop the whole report with a traceback.
-    from rig.report import build_report
+    from rig.bench.report import build_report
 
     out = make_run_dir(tmp_path)
     bad = out / "session" / "truth" / "000001.npz"
@@ -198,7 +198,7 @@ def test_a_bad_truth_file_is_a_note_not_the_end_of_the_report(tmp_path, spoil):
 
 def test_cli_report_errors_are_one_line(tmp_path, capsys):
     from rig.cli import main
-    from rig.report import report_or_warn
+    from rig.bench.report import report_or_warn
 
     assert main(["report", str(tmp_path)]) == 2
     err = capsys.readouterr().err
@@ -220,7 +220,7 @@ def test_run_and_reconstruct_accept_report_options():
 
 
 def test_detail_frame_selection_keeps_failed_and_worst():
-    from rig.report import select_detail_frames
+    from rig.bench.report import select_detail_frames
 
     recs = [{"frame": i, "status": "ok", "mean_error_mm": float(i % 17)} for i in range(200)]
     recs[5] = {"frame": 5, "status": "failed"}
@@ -230,7 +230,7 @@ def test_detail_frame_selection_keeps_failed_and_worst():
 
 
 def test_closest_arc_length():
-    from rig.report import closest_arc_length
+    from rig.bench.report import closest_arc_length
 
     line = np.array([[0.0, 0, 0], [10, 0, 0], [10, 10, 0]])
     s, d = closest_arc_length(np.array([[5.0, 1, 0], [11, 5, 0], [-1, 0, 0]]), line)
@@ -303,7 +303,7 @@ def test_tube_mesh_radii_per_point_and_degenerate_input():
 
 
 def test_mesh_exports_round_trip(tmp_path):
-    from rig.meshes import write_frame_meshes
+    from rig.bench.meshes import write_frame_meshes
 
     t = np.linspace(0, 1, 40)
     P = np.stack([50 * t, 10 * t**2, np.zeros_like(t)], axis=1)

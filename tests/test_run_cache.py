@@ -1,6 +1,6 @@
 """``ctr-bench run`` renders a scene once (issue 17 item 3).
 
-The render cache (rig/render_cache.py) that bench, tune and dataset use keeps the
+The render cache (rig/bench/render_cache.py) that bench, tune and dataset use keeps the
 session under a hash of the scene file's content: a second ``run`` of the same
 scene renders nothing, and its results are those of the first. ``--no-cache``
 renders afresh without touching the cache.
@@ -16,10 +16,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import rig.commands.render as render_cmd
-import rig.commands.run as run_cmd
+import rig.bench.render_cache as render_cache
+import rig.cli.commands.run as run_cmd
 from rig.cli import main
-from rig.render_cache import cache_key
+from rig.bench.render_cache import cache_key
 from twin.scene import load_scene
 
 from conftest import SCENES
@@ -52,7 +52,7 @@ def _no_render(monkeypatch):
     def fail(*a, **k):
         raise AssertionError("rendered although the scene is cached")
 
-    monkeypatch.setattr(render_cmd, "render_scene_to", fail)
+    monkeypatch.setattr(render_cache, "render_scene_to", fail)
     monkeypatch.setattr(run_cmd, "render_scene_to", fail)
 
 

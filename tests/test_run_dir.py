@@ -35,7 +35,7 @@ import pytest
 from recon.errors import FrameError
 from recon.methods import METHODS, Method
 from rig import rundir
-from rig.reconstruct import read_run, reconstruct_session
+from rig.bench.reconstruct import read_run, reconstruct_session
 from rig.session import Session, SessionWriter
 
 N_BACKGROUND = 8
@@ -120,7 +120,7 @@ def cli(*argv) -> int:
 @pytest.fixture(scope="module")
 def fast_run(session, tmp_path_factory) -> Path:
     """A finished ``reconstruct --method fast`` run, with its report: copied by the tests that need an earlier run."""
-    from rig.report import build_report
+    from rig.bench.report import build_report
 
     out = tmp_path_factory.mktemp("fast") / "out"
     assert cli("reconstruct", session, "--out", out, "--method", "fast", "--no-report", "--quiet") == 0
@@ -188,8 +188,8 @@ def test_a_session_directory_is_never_an_output_directory(session, tmp_path, mon
 def test_overwrite_removes_the_earlier_run_and_report_and_verify_see_only_the_new_one(earlier, session, rendered,
                                                                                     monkeypatch, capsys):
     """A frame that failed this time leaves no old file; report and verify draw the new run only."""
-    from rig.commands.verify import load_dataset
-    from rig.report import load_run
+    from rig.bench.modeldata import load_dataset
+    from rig.bench.report import load_run
 
     old = _summary(earlier)
     assert (earlier / "report" / "index.html").exists() and (earlier / "frames" / "000001.csv").exists()
@@ -319,7 +319,7 @@ def test_the_journal_forgives_only_a_torn_last_line(tmp_path):
 
 # ----------------------------------------------------------------------------- NaN and inf
 def test_nan_time_and_non_finite_results_give_nulls_and_failed_frames(session, rendered, tmp_path, monkeypatch):
-    import rig.reconstruct as rr
+    import rig.bench.reconstruct as rr
 
     class NanTimes(Session):  # as a frames.csv with t_s = nan would give, whatever the session reader allows
         def __init__(self, directory):
@@ -369,7 +369,7 @@ class _FullDisk:
 
 @pytest.mark.parametrize("target", ["frame csv", "journal"])
 def test_a_full_disk_is_one_line_naming_the_file_and_finished_frames_are_kept(target, session, tmp_path, monkeypatch, capsys):
-    import rig.reconstruct as rr
+    import rig.bench.reconstruct as rr
 
     monkeypatch.setitem(METHODS, "line", fake_method("line", _line))
     out = tmp_path / "out"

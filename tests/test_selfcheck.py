@@ -200,7 +200,7 @@ class _WrongParams:
 
 def test_reconstruct_session_marks_a_wrong_frame_suspect(rendered, tmp_path, monkeypatch):
     from recon.methods import METHODS, Method
-    from rig.reconstruct import format_table, reconstruct_session
+    from rig.bench.reconstruct import format_table, reconstruct_session
     from rig.session import SessionWriter
 
     session = tmp_path / "session"
@@ -234,7 +234,7 @@ def test_reconstruct_session_marks_a_wrong_frame_suspect(rendered, tmp_path, mon
     assert r1["jump_flag"] and r1["jump_reason"] == "tip moved 40 mm" and summary["jump_frames"] == 2
     assert (tmp_path / "out" / "frames" / "000001.csv").exists()
     assert f"suspect: {r1['reason']}" in format_table(summary)
-    from rig.report import build_report
+    from rig.bench.report import build_report
 
     page = build_report(tmp_path / "out", meshes=False, overlays=False).read_text()
     assert "<tr class='suspect'>" in page and "1 are suspect" in page

@@ -15,8 +15,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from rig import widebench
-from rig.commands import bench
+from rig.bench import widebench
+from rig.cli.commands import bench
 from rig.session import Session
 from tiny_session import tiny_backbone, tiny_rig, write_tiny_session
 

@@ -13,7 +13,7 @@ from recon.paper import PaperParams
 from recon.params import load_params
 from rig.cli import main
 from rig.scenefiles import scene_path
-from rig.tune import KNOBS, Evaluator, Knob, evaluate, knob_values, load_tune_sessions, tune, tuned_dict, with_knobs
+from rig.bench.tune import KNOBS, Evaluator, Knob, evaluate, knob_values, load_tune_sessions, tune, tuned_dict, with_knobs
 
 ROOT = Path(__file__).resolve().parents[1]
 #: A tuning scene: dim, flickering light, noisy sensor; 4 frames, 10 background frames.

@@ -35,7 +35,7 @@ else:  # pragma: no cover
 
 ROOT = Path(__file__).resolve().parents[1]
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
-#: Build outputs and caches that a release never ships (rig/firmware/build, rig/sim/build are gitignored).
+#: Build outputs and caches that a release never ships (rig/hw/firmware/build, rig/hw/sim/build are gitignored).
 IGNORED = shutil.ignore_patterns("__pycache__", "*.pyc", "build", "*.egg-info")
 #: pip's words when the build backend cannot be had (no index, none cached): building is impossible here.
 NO_BACKEND = ("No matching distribution found for setuptools", "Could not find a version that satisfies the requirement setuptools")

@@ -17,7 +17,7 @@ import pytest
 
 from recon.errors import FrameError
 from recon.metrics import backbone_errors
-from rig.widebench import frame_footprint_mm
+from rig.bench.widebench import frame_footprint_mm
 
 CASES = {
     "camera, base outside": {"backdrop": "wood", "base": "outside", "tubes": "2", "input": "camera"},

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from recon.errors import FrameError
 from recon.metrics import backbone_errors
 from recon.selfcheck import SelfCheckParams, check_backbone, prepare_selfcheck
-from rig.widebench import SILENT_WRONG_PX, frame_footprint_mm
+from rig.bench.widebench import SILENT_WRONG_PX, frame_footprint_mm
 
 LONG = os.environ.get("HYPOTHESIS_PROFILE") == "long"
 NO_SHRINK = (Phase.explicit, Phase.reuse, Phase.generate)

@@ -11,7 +11,7 @@ import csv
 
 import pytest
 
-from rig import widebench
+from rig.bench import widebench
 
 SEED = 21
 N_SCENES = 4

@@ -1,0 +1,553 @@
+"""Reconstruct every frame of a session directory and score it against ground truth.
+
+Outputs (documented in ``docs/outputs.md``), written as the work goes so that an
+interrupted run keeps what it finished:
+
+* ``frames/NNNNNN.csv``: the backbone of each frame, ``s_mm,x_mm,y_mm,z_mm,tx,ty,tz``, base first
+  (:mod:`rig.backbone_csv`);
+* ``frames.jsonl``: the journal, one line per finished frame, appended and flushed
+  as it finishes (:mod:`rig.rundir`): what ``--resume`` continues from;
+* ``frames.csv``: one row per frame (time, status, reason, figures);
+* ``backbones.npz``: all backbones (``frame_NNNNNN`` arrays) and the frame indices;
+* ``summary.json``: method, parameters, per-frame results and aggregates, the
+  run id and the files it wrote; rewritten every few seconds and at the end.
+
+The output directory is the run's: one that holds an earlier run is refused
+unless ``existing="overwrite"`` (the earlier run's files are removed) or
+``"resume"`` (its finished frames are kept and skipped). :func:`read_run`
+reads a run back from what its summary lists, and no other file.
+
+Every reconstructed backbone is judged against its images by the
+method-independent self-check (:mod:`recon.selfcheck`, ``docs/selfcheck.md``):
+a frame whose backbone does not explain the images is ``suspect`` (not
+``ok``), with the reason; it is still written and scored, so that a benchmark
+can count silent wrong shapes (``ok`` frames with large errors).
+"""
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from recon.errors import FrameError
+from recon.methods import get_method
+from recon.metrics import backbone_errors
+from recon.params import params_to_dict
+from recon.selfcheck import SelfCheckParams, check_backbone, prepare_selfcheck
+from rig.backbone_csv import FrameTable, read_backbone_csv, write_backbone_csv
+from rig.rundir import (
+    BACKBONES,
+    FRAMES_DIR,
+    JOURNAL,
+    SUMMARY,
+    TABLE,
+    Journal,
+    WriteError,
+    check_claim,
+    finite_or_none,
+    journal_header,
+    json_safe,
+    json_text,
+    params_as_dict,
+    read_backbones_npz,
+    read_journal,
+    read_summary,
+    remove_files,
+    summarize,
+    write_backbones_npz,
+    write_summary_json,
+    writing,
+)
+from rig.session import Session, SessionError
+from rig.tables import cell
+
+__all__ = ["reconstruct_session", "load_background_frames", "format_table",
+           "selfcheck_tube_radii_mm", "selfcheck_record", "read_run", "RunWriter"]
+
+#: Per-frame statuses: reconstructed and passed the self-check, reconstructed but the
+#: self-check doubts it, not reconstructed.
+STATUSES = ("ok", "suspect", "failed")
+#: summary.json is rewritten at most this often while a run goes (the journal has every frame at once)...
+SUMMARY_EVERY_S = 5.0
+#: ...and at most once per this many times its own writing time: its size grows with the run, its share of the time does not.
+SUMMARY_COST_FACTOR = 20.0
+
+
+def load_background_frames(session: Session) -> dict:
+    """Background stacks by camera, checked against the rig's image sizes."""
+    out = {}
+    for cam in session.cameras:
+        stack = session.background_stack(cam)
+        c = session.rig[cam]
+        if stack.shape[1:] != (c.height, c.width):
+            raise SessionError(
+                f"{session.dir / 'background' / cam}: frames are {stack.shape[2]}x{stack.shape[1]} "
+                f"but rig.json says {c.width}x{c.height}"
+            )
+        out[cam] = stack
+    return out
+
+
+def _background_error(session: Session, exc: Exception) -> str:
+    """One line naming the background directory at fault (the camera's, when the message names one)."""
+    msg = " ".join(str(exc).split())
+    cam, sep, rest = msg.partition(": ")
+    if sep and cam in session.cameras:
+        return f"{session.dir / 'background' / cam}: {rest}"
+    return f"{session.dir / 'background'}: {msg}"
+
+
+def _one_line(exc: Exception) -> str:
+    """A per-frame failure reason: the exception's message on one line."""
+    msg = " ".join(str(exc).split())
+    if isinstance(exc, (FrameError, SessionError)):
+        return msg
+    # Not a foreseen failure: say what it was, still on one line.
+    return f"unexpected {type(exc).__name__}: {msg}" if msg else f"unexpected {type(exc).__name__}"
+
+
+def mm_per_pixel(session: Session) -> float:
+    """Mean pixel footprint (mm) of the cameras at the robot base."""
+    base = session.rig.base_point_world_mm
+    return float(np.mean([session.rig[c].mm_per_pixel_at(base) for c in session.cameras]))
+
+
+def selfcheck_tube_radii_mm(session: Session, params):
+    """(outermost, innermost) tube radius (mm) the self-check draws the tube with.
+
+    The robot in session.json when it has one (it is the robot in the images),
+    else the method's ``outer_tube_radius_mm`` / ``inner_tube_radius_mm``;
+    None when neither says.
+    """
+    radii = session.robot_tube_radii_mm
+    if radii is not None:
+        return radii
+    if hasattr(params, "outer_tube_radius_mm") and hasattr(params, "inner_tube_radius_mm"):
+        return float(params.outer_tube_radius_mm), float(params.inner_tube_radius_mm)
+    return None
+
+
+def selfcheck_record(rec: dict, check_model, images: dict, pts: np.ndarray, radii_mm, params: SelfCheckParams) -> None:
+    """Judge a reconstructed backbone and record the verdict in its per-frame record.
+
+    Sets ``rec["selfcheck"]`` (``recon.selfcheck.SelfCheck.to_dict``) and, when
+    the check fails, ``status = "suspect"`` with the check's reason. A check
+    that cannot run makes the frame suspect too: an unverified shape must not
+    pass as ``ok``.
+    """
+    try:
+        sc = check_backbone(check_model, images, pts, radii_mm, params)
+    except Exception as exc:  # noqa: BLE001 - a crashing check must not cost the frame
+        if os.environ.get("CTR_BENCH_DEBUG") and not isinstance(exc, ValueError):
+            raise
+        rec["selfcheck"] = {"ok": False, "reason": f"self-check could not run: {_one_line(exc)}", "ms": None, "views": {}}
+        rec.update(status="suspect", reason=rec["selfcheck"]["reason"])
+        return
+    rec["selfcheck"] = sc.to_dict()
+    if not sc.ok:
+        rec.update(status="suspect", reason=sc.reason)
+
+
+def _prepare_check(session: Session, method: str, params, backgrounds: dict, selfcheck):
+    """The self-check model and the tube radii (mm) it draws with; ``(None, None)`` when ``selfcheck`` is None."""
+    if selfcheck is None:
+        return None, None
+    radii_mm = selfcheck_tube_radii_mm(session, params)
+    if radii_mm is None:
+        raise SessionError(f"{session.dir / 'session.json'}: no robot tubes and method {method!r} has no tube radii: "
+                           "the self-check cannot draw the tube (reconstruct_session(selfcheck=None) skips it)")
+    try:
+        return prepare_selfcheck(session.rig, backgrounds, selfcheck), radii_mm
+    except ValueError as exc:
+        raise SessionError(_background_error(session, exc)) from None
+
+
+def _describe(rec: dict, result, pts: np.ndarray) -> None:
+    """What a reconstructed frame's record says of its backbone (points, length, tip, stages' times, voxels)."""
+    rec.update(
+        n_points=int(len(pts)),
+        length_mm=finite_or_none(result.length_mm),
+        tip_world_mm=[float(v) for v in result.tip_world_mm],
+        transition_s_mm=finite_or_none(result.transition_s_mm),
+        timings_ms={k: round(float(v), 3) for k, v in result.timings_ms.items()},
+    )
+    voxel = getattr(result, "voxel_size_mm", None)
+    if voxel is not None:
+        rec["voxel_size_mm"] = [float(v) for v in np.broadcast_to(np.asarray(voxel, float), (3,))]
+
+
+def _score(rec: dict, session: Session, index: int, pts: np.ndarray) -> None:
+    """The frame's errors against the session's ground truth, if it has any; a bad truth file costs the score only."""
+    try:
+        truth = session.truth(index)
+        if truth is not None:
+            if "backbone_world_mm" not in truth:
+                raise SessionError(f"{session.dir / 'truth' / f'{index:06d}.npz'}: no backbone_world_mm array")
+            errs = backbone_errors(pts, truth["backbone_world_mm"], session.rig)
+            rec.update({k: finite_or_none(v) for k, v in errs.items()})
+    except Exception as exc:  # noqa: BLE001 - a bad truth file costs the score, not the frame
+        rec["note"] = f"not scored: {_one_line(exc)}"
+
+
+def _reconstruct_frame(session: Session, fr, reconstruct, check_model, radii_mm, selfcheck) -> tuple:
+    """One frame: its record and its backbone (None when it failed).
+
+    Whatever goes wrong with the frame is the frame's failure, with a one-line
+    reason: an exception, a backbone that is empty or not finite, a result that
+    cannot be described. The run goes on.
+    """
+    rec = {"frame": fr.index, "t_s": fr.t_s, "status": "ok", "reason": None}
+    try:
+        return rec, _reconstruct_and_judge(rec, session, fr.index, reconstruct, check_model, radii_mm, selfcheck)
+    except Exception as exc:  # noqa: BLE001 - per-frame isolation is the point
+        if os.environ.get("CTR_BENCH_DEBUG") and not isinstance(exc, (FrameError, SessionError)):
+            raise  # a developer asked to see where an unforeseen failure comes from
+        return {"frame": fr.index, "t_s": fr.t_s, "status": "failed", "reason": _one_line(exc)}, None
+
+
+def _reconstruct_and_judge(rec: dict, session: Session, index: int, reconstruct, check_model, radii_mm, selfcheck) -> np.ndarray:
+    """Reconstruct frame ``index`` into ``rec`` (time, self-check, description, score); returns its backbone."""
+    images = session.frame_images(index)
+    for cam, img in images.items():
+        c = session.rig[cam]
+        if img.shape != (c.height, c.width):
+            raise FrameError(f"image is {img.shape[1]}x{img.shape[0]} but the calibration is {c.width}x{c.height}", cam)
+    t0 = time.perf_counter()
+    result = reconstruct(images)
+    rec["ms"] = 1e3 * (time.perf_counter() - t0)
+    pts = _backbone_points(result)
+    # The fast method's temporal check: recorded, the frame stays as the self-check judges it.
+    rec["jump_flag"] = bool(getattr(result, "jump_flag", False))
+    rec["jump_reason"] = getattr(result, "jump_reason", None) if rec["jump_flag"] else None
+    if check_model is not None:
+        selfcheck_record(rec, check_model, images, pts, radii_mm, selfcheck)
+    own = getattr(result, "suspect_reason", None)
+    if own and rec["status"] == "ok":  # the method's own doubt (recorded when the check passed)
+        rec.update(status="suspect", reason=str(own))
+    _describe(rec, result, pts)
+    _score(rec, session, index, pts)
+    return pts
+
+
+def _backbone_points(result) -> np.ndarray:
+    """The (n, 3) backbone of a method's result; a ``FrameError`` when it has none or a point is not finite."""
+    pts = np.asarray(result.points_world_mm, float)
+    if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] == 0:
+        raise FrameError(f"the reconstruction has no valid backbone point (points of shape {pts.shape})")
+    bad = int(np.count_nonzero(~np.isfinite(pts).all(axis=1)))
+    if bad:
+        raise FrameError(f"the reconstruction has {bad} non-finite backbone points of {len(pts)}")
+    return pts
+
+
+class RunWriter:
+    """The files of one run as it goes (docs/outputs.md); the bookkeeping of :func:`reconstruct_session`.
+
+    Per finished frame: its backbone CSV, a journal line (flushed: the frame is
+    kept from then on, SIGKILL included) and a frames.csv row; summary.json
+    every :data:`SUMMARY_EVERY_S` at most (never more than 1/:data:`SUMMARY_COST_FACTOR`
+    of the time), so that the cost per frame does not grow with the run.
+    A write that fails raises :class:`rig.rundir.WriteError` naming the file.
+
+    Parameters
+    ----------
+    out : Path
+        The run directory (claimed: :func:`rig.rundir.check_claim`).
+    header : dict
+        The journal header (:func:`rig.rundir.journal_header`, with ``mm_per_px``).
+    kept : list of dict, optional
+        Records of the frames a resumed run keeps, and ``backbones`` their backbones.
+    """
+
+    def __init__(self, out, header: dict, kept=(), backbones=None):
+        self.out, self.header = Path(out), header
+        self.records, self.backbones = list(kept), dict(backbones or {})
+        self._lines = [json_text(r, indent=None) for r in self.records]  # each frame's JSON, encoded once
+        self.files = {"journal": JOURNAL, "table": TABLE, "backbones": None, "backbones_sha1": None}
+        with writing(self.out / FRAMES_DIR):
+            (self.out / FRAMES_DIR).mkdir(parents=True, exist_ok=True)
+        self._journal = Journal(self.out / JOURNAL, header, self.records)
+        with writing(self.out / TABLE):
+            self._table = FrameTable(self.out / TABLE, self.records)
+        self._next_summary = 0.0
+        self.write_summary()  # the directory names its run from the start
+
+    def add(self, rec: dict, pts: np.ndarray | None) -> None:
+        """Write a finished frame: its backbone (None: failed), journal line, table row; the summary when due."""
+        name = f"{FRAMES_DIR}/{rec['frame']:06d}.csv"
+        with writing(self.out / name):
+            if pts is not None:
+                rec.update(backbone_csv=name, backbone_sha1=write_backbone_csv(self.out / name, pts))
+                self.backbones[rec["frame"]] = pts
+            else:  # an earlier try of this frame, cut by a kill before its journal line, may have left one
+                (self.out / name).unlink(missing_ok=True)
+        self._lines.append(self._journal.add(rec))
+        with writing(self._table.path):
+            self._table.add(rec)
+        self.records.append(rec)
+        if time.monotonic() >= self._next_summary:
+            self.write_summary()
+
+    def summary(self, complete: bool = False) -> dict:
+        """The summary of the frames written so far."""
+        h = self.header
+        return summarize(self.records, h["method"], h["params"], h["session"], h["mm_per_px"], h["selfcheck"],
+                         run_id=h["run_id"], complete=complete, files=self.files, session_notes=h.get("session_notes", ()))
+
+    def write_summary(self, complete: bool = False) -> dict:
+        """Write summary.json now; the next one while the run goes is due after a pause proportional to its cost."""
+        t0 = time.monotonic()
+        summary = self.summary(complete)
+        write_summary_json(self.out / SUMMARY, {k: v for k, v in summary.items() if k != "per_frame"}, self._lines)
+        cost = time.monotonic() - t0
+        self._next_summary = time.monotonic() + max(SUMMARY_EVERY_S, SUMMARY_COST_FACTOR * cost)
+        return summary
+
+    def finish(self) -> dict:
+        """Write backbones.npz and the complete summary; close. Returns the summary (unknown values as None)."""
+        self._journal.sync()
+        sha1 = write_backbones_npz(self.out / BACKBONES, self.backbones)
+        self.files.update(backbones=BACKBONES, backbones_sha1=sha1)  # listed once it is all there
+        summary = self.write_summary(complete=True)
+        self.close()
+        return json_safe(summary)
+
+    def abort(self, exc: BaseException) -> None:
+        """After an error or an interrupt: keep what is finished (journal synced, summary of it), best effort."""
+        if isinstance(exc, WriteError):
+            exc.note = f"the {len(self.records)} frames finished are kept in {self.out / JOURNAL} (--resume continues)"
+        try:
+            self.write_summary()
+        except OSError:
+            pass  # the disk that refused a frame may refuse the summary too; the journal has the frames
+        try:
+            self.close()
+        except OSError:
+            pass
+
+    def close(self) -> None:
+        self._journal.close()
+        self._table.close()
+
+
+def _kept_frames(out: Path, records: list) -> tuple:
+    """The records and backbones a resumed run keeps: every finished frame whose backbone file is as written.
+
+    A reconstructed frame whose CSV is missing or changed is done again.
+    """
+    kept, backbones = [], {}
+    for rec in {r["frame"]: r for r in records}.values():
+        if rec.get("backbone_csv"):
+            try:
+                backbones[rec["frame"]] = read_backbone_csv(out / rec["backbone_csv"], sha1=rec.get("backbone_sha1"))
+            except (OSError, ValueError):
+                continue
+        kept.append(rec)
+    return kept, backbones
+
+
+def _prepare_method(session: Session, m, backgrounds: dict, params):
+    """The method's per-frame callable; a set-up failure is a ``SessionError`` naming the background directory."""
+    try:
+        return m.prepare(session.rig, backgrounds, params)
+    except ValueError as exc:  # FrameError included
+        raise SessionError(_background_error(session, exc)) from None
+
+
+def _report_progress(progress, rec: dict, done: int, total: int) -> None:
+    if progress:
+        post = {"ms": f"{rec['ms']:.0f}"} if rec["status"] == "ok" else {rec["status"]: rec["frame"]}
+        progress("reconstruct", done, total, **post)
+
+
+def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None, progress=None, frames=None,
+                        selfcheck: SelfCheckParams | None = SelfCheckParams(), existing: str = "refuse") -> dict:
+    """Reconstruct (and score, when the session has ground truth) every frame.
+
+    Parameters
+    ----------
+    session_dir : path
+        A session directory (docs/session-format.md).
+    out_dir : path
+        Created if missing; CSVs, the journal, NPZ and summary.json go there.
+    method : str
+        A name from :data:`recon.methods.METHODS`.
+    params : dataclass, optional
+        The method's parameters (defaults when None).
+    progress : callable(stage, done, total, **postfix), optional
+    frames : iterable of int, optional
+        Frame indices to do (default: all committed frames).
+    selfcheck : SelfCheckParams or None
+        Judge every reconstructed backbone against its images
+        (:mod:`recon.selfcheck`); a frame that fails is ``suspect``. None
+        disables it (to measure what a run reports without it).
+    existing : {"refuse", "overwrite", "resume"}
+        When ``out_dir`` holds an earlier run: refuse (default), remove the
+        earlier run's files first, or continue it (its finished frames are kept
+        and not done again; method, parameters, self-check and session must be
+        the same).
+
+    Returns
+    -------
+    dict
+        The summary (also written to ``out_dir/summary.json``), unknown values as None.
+
+    Raises
+    ------
+    SessionError, ValueError
+        Set-up problems (missing files, too few background frames...), one line
+        naming the file. Problems of single frames never raise: they are recorded
+        as ``failed`` with their reason and the run goes on.
+    rig.rundir.RunDirError
+        ``out_dir`` holds a run this one may not overwrite or continue.
+    rig.rundir.WriteError
+        An output file could not be written (disk full...): the frames finished before are kept.
+    """
+    session = Session(session_dir)
+    m = get_method(method)
+    params = params if params is not None else m.params_type()
+    out = Path(out_dir)
+    header = journal_header(method, params_to_dict(params), params_as_dict(selfcheck), session.dir)
+    stale, earlier = check_claim(out, existing, header)  # refused before any work
+    backgrounds = load_background_frames(session)
+    reconstruct = _prepare_method(session, m, backgrounds, params)
+    check_model, radii_mm = _prepare_check(session, method, params, backgrounds, selfcheck)
+    header["mm_per_px"] = mm_per_pixel(session)
+    header["session_notes"] = list(session.notes)
+    remove_files(out, stale)
+    kept, backbones = ([], {}) if earlier is None else _kept_frames(out, earlier[1])
+    now = {k: header[k] for k in ("mm_per_px", "session_notes")}
+    writer = RunWriter(out, header if earlier is None else {**earlier[0], **now}, kept, backbones)
+    done = {r["frame"] for r in kept}
+    wanted = set(frames) if frames is not None else None
+    todo = [f for f in session.frames if (wanted is None or f.index in wanted) and f.index not in done]
+    try:
+        for n, fr in enumerate(todo):
+            rec, pts = _reconstruct_frame(session, fr, reconstruct, check_model, radii_mm, selfcheck)
+            writer.add(rec, pts)
+            _report_progress(progress, rec, n + 1, len(todo))
+    except BaseException as exc:  # an interrupt or a failed write: keep what is finished
+        writer.abort(exc)
+        raise
+    return writer.finish()
+
+
+def read_run(out_dir) -> tuple:
+    """A run directory's summary and backbones, read only from the files its summary lists.
+
+    A summary that is not ``complete`` (the run was killed or is still going:
+    summary.json is rewritten every few seconds) is rebuilt from the journal.
+    Backbones come from the ``backbones.npz`` the summary lists, else the
+    per-frame CSVs its records list; a file of another run (another SHA-1
+    than the summary records) is an error naming it. A summary without ``run_id`` (older
+    ctr-bench, or the live summary of ``ctr-bench experiment``) lists frames
+    only: the backbones of its reconstructed frames are read, and no others.
+
+    Returns
+    -------
+    (summary, backbones) : (dict, dict frame -> (n, 3) world mm)
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        One line naming the file.
+    """
+    out = Path(out_dir)
+    summary = read_summary(out / SUMMARY)
+    if summary.get("run_id") is None:
+        return summary, _unlisted_backbones(out, summary)
+    if not summary.get("complete"):
+        summary = _rebuilt_summary(out, summary)
+    return summary, _listed_backbones(out, summary)
+
+
+def _rebuilt_summary(out: Path, summary: dict) -> dict:
+    """The summary of a run cut short, rebuilt from its journal (which has every finished frame)."""
+    path = out / ((summary.get("files") or {}).get("journal") or JOURNAL)
+    if not path.exists():
+        return summary
+    header, records = read_journal(path)
+    if header.get("run_id") != summary["run_id"]:
+        raise ValueError(f"{path}: written by run {header.get('run_id')}, not by run {summary['run_id']} that "
+                         f"{out / SUMMARY} describes (a stale file of another run)")
+    records = list({r["frame"]: r for r in records}.values())
+    return json_safe(summarize(records, header.get("method"), header.get("params"), header.get("session"),
+                               header.get("mm_per_px"), header.get("selfcheck"), run_id=header["run_id"],
+                               session_notes=header.get("session_notes", ())))
+
+
+def _listed_backbones(out: Path, summary: dict) -> dict:
+    """Backbones from the files a summary with a run id lists: its backbones.npz, else its per-frame CSVs."""
+    files = summary.get("files") or {}
+    if files.get("backbones"):
+        return read_backbones_npz(out / files["backbones"], sha1=files.get("backbones_sha1"))
+    found = {}
+    for rec in summary.get("per_frame", []):
+        if rec.get("backbone_csv"):
+            path = out / rec["backbone_csv"]
+            if not path.is_file():
+                raise ValueError(f"{path}: missing ({out / SUMMARY} lists it for frame {rec['frame']})")
+            found[int(rec["frame"])] = read_backbone_csv(path, sha1=rec.get("backbone_sha1"))
+    return found
+
+
+def _unlisted_backbones(out: Path, summary: dict) -> dict:
+    """Backbones of the frames a summary without run id says were reconstructed (backbones.npz, else their CSVs)."""
+    wanted = {int(r["frame"]) for r in summary.get("per_frame", []) if r.get("status") in ("ok", "suspect")}
+    if (out / BACKBONES).exists():
+        return read_backbones_npz(out / BACKBONES, frames=wanted)
+    found = {}
+    for i in sorted(wanted):
+        path = out / FRAMES_DIR / f"{i:06d}.csv"
+        try:
+            found[i] = read_backbone_csv(path)
+        except (OSError, ValueError):
+            continue  # a run cut short may not have written it; the frame is drawn without a backbone
+    return found
+
+
+def format_table(summary: dict) -> str:
+    """The per-frame table printed at the end of ``run`` and ``reconstruct``."""
+    px = summary.get("mm_per_px") or float("nan")
+    lines = [f"{'frame':>5}  {'tip mm':>7}  {'mean mm':>7}  {'max mm':>7}  {'ms/pair':>7}  status"]
+    for r in summary["per_frame"]:
+        status = "ok" if r["status"] == "ok" else f"{r['status']}: {r['reason']}"
+        if r.get("jump_flag"):
+            status += f" (jump: {r.get('jump_reason')})"
+        lines.append(
+            f"{r['frame']:>5}  {cell(r.get('tip_error_mm'))}  {cell(r.get('mean_error_mm'))}  {cell(r.get('max_error_mm'))}  {cell(r.get('ms'), precision=1)}  {status}"
+        )
+    s = summary
+    lines.append("")
+    counts = f"{s['frames']} frames, {s['failed_frames']} failed"
+    if s.get("suspect_frames") is not None:
+        counts += f", {s['suspect_frames']} suspect" if s.get("selfcheck") is not None else " (self-check off)"
+    if s.get("jump_frames"):
+        counts += f", {s['jump_frames']} with a temporal jump"
+    lines.append(f"method {s['method']}: {counts}; pixel footprint {px:.4f} mm")
+    if s.get("mean_error_mm") is not None:
+        lines.append(
+            f"mean error {s['mean_error_mm']:.3f} mm ({s['mean_error_mm'] / px:.2f} px), "
+            f"max error {s['max_error_mm']:.3f} mm ({s['max_error_mm'] / px:.2f} px), "
+            f"tip error median {s['tip_error_mm_median']:.3f} mm ({s['tip_error_mm_median'] / px:.2f} px), "
+            f"max {s['tip_error_mm_max']:.3f} mm"
+        )
+    if s.get("voxel_edge_mm_median") is not None:
+        lines.append(
+            f"voxel edge (largest of the three) median {s['voxel_edge_mm_median']:.3f} mm, max {s['voxel_edge_mm_max']:.3f} mm"
+            + (f"; mean error {s['mean_error_mm'] / s['voxel_edge_mm_median']:.2f} voxel" if s.get("mean_error_mm") is not None else "")
+        )
+    rec = s.get("reconstructed") or {}
+    if s.get("suspect_frames") and rec.get("mean_error_mm") is not None:
+        lines.append(
+            f"with the {s['suspect_frames']} suspect frames: mean error {rec['mean_error_mm']:.3f} mm ({rec['mean_error_mm'] / px:.2f} px), "
+            f"max error {rec['max_error_mm']:.3f} mm ({rec['max_error_mm'] / px:.2f} px)"
+        )
+    if s.get("ms_per_pair_median") is not None:
+        line = f"time per pair: median {s['ms_per_pair_median']:.1f} ms, p95 {s['ms_per_pair_p95']:.1f} ms"
+        if s.get("selfcheck_ms_median") is not None:
+            line += f"; self-check median {s['selfcheck_ms_median']:.1f} ms, max {s['selfcheck_ms_max']:.1f} ms"
+        lines.append(line)
+    return "\n".join(lines)

@@ -1,1 +1,0 @@
-"""Sub-commands of ``ctr-bench`` (one module each; see rig/cli.py)."""
