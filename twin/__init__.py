@@ -1,6 +1,6 @@
-"""twin: the digital twin of the rig (robot kinematics, meshes, scene, rendering, ground truth)."""
+"""twin: the digital twin of the rig (robot kinematics, meshes, scene, rendering, ground truth).
 
-from .gl import select_platform as _select_platform
-
-# PyOpenGL binds its platform at first import: choose it before any submodule imports pyrender.
-_select_platform()
+Importing it, or any module but :mod:`twin.render`, needs no OpenGL: the renderer picks the
+offscreen platform (:func:`twin.gl.select_platform`) when it is imported, which a
+:class:`twin.simulator.Twin` does when it is made.
+"""

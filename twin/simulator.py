@@ -13,7 +13,6 @@ import numpy as np
 from .kinematics import solve
 from .mesh import tube_meshes
 from .noise import expose, frame_rng, jitter_camera
-from .render import SetRenderer
 from .robot import Backbone, Joints
 from .scene import Scene
 
@@ -63,6 +62,9 @@ class Twin:
 
     def __init__(self, scene: Scene):
         self.scene = scene
+        # PyOpenGL binds its platform at first import: only a twin that renders imports the renderer.
+        from .render import SetRenderer
+
         self.renderer = SetRenderer(scene)
 
     def close(self) -> None:
