@@ -5,7 +5,6 @@ import os
 
 import pytest
 
-import twin  # noqa: F401  (chooses the OpenGL platform before anything imports PyOpenGL)
 from rig.scenefiles import scenes_dir
 
 SCENES = scenes_dir()  # the checkout's scenes/, found as the CLI finds it
@@ -43,3 +42,13 @@ settings.register_profile("ci", derandomize=True, deadline=None, max_examples=25
                           suppress_health_check=[HealthCheck.too_slow], print_blob=True)
 settings.register_profile("long", deadline=None, max_examples=500, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Print the figures the tests measured (tests/figures.py), a section each."""
+    from figures import FIGURES
+
+    for section, figs in FIGURES.items():
+        terminalreporter.write_sep("-", f"{section} figures")
+        for key, value in figs.items():
+            terminalreporter.write_line(f"  {key}: {value}")

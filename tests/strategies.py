@@ -31,11 +31,15 @@ gray as the tubes (docs/envelope.md, "Outside the drawn envelope").
 from __future__ import annotations
 
 import copy
+import os
+from dataclasses import replace
 import sys
 
 import numpy as np
+from hypothesis import Phase
 from hypothesis import strategies as st
 
+from recon.methods import get_method
 from rig.scenefiles import scene_path
 
 if sys.version_info >= (3, 11):
@@ -535,3 +539,37 @@ def beyond_base(points_world_mm, rig) -> np.ndarray:
     axis = np.asarray(rig.insertion_axis_world, float)
     keep = (p - np.asarray(rig.base_point_world_mm, float)) @ (axis / np.linalg.norm(axis)) >= 0.0
     return p[keep]
+
+
+LONG = os.environ.get("HYPOTHESIS_PROFILE") == "long"
+
+
+def examples(ci: int, long: int) -> int:
+    """Examples to draw: ``ci`` under the bounded ci profile, ``long`` under HYPOTHESIS_PROFILE=long."""
+    return long if LONG else ci
+
+
+#: Rendering properties do not shrink: every shrink step re-renders a scene (seconds each).
+NO_SHRINK = (Phase.explicit, Phase.reuse, Phase.generate)
+
+
+# ============================================================================= methods on twin scenes
+def method_available(name: str) -> bool:
+    """Whether ``name`` is a registered reconstruction method."""
+    try:
+        get_method(name)
+    except ValueError:
+        return False
+    return True
+
+
+def params_for(method: str, scene):
+    """The method's default parameters with the scene's tube radii (what a user of that robot sets)."""
+    t = scene.robot.tubes
+    return replace(get_method(method).params_type(), outer_tube_radius_mm=t[0].outer_diameter_mm / 2,
+                   inner_tube_radius_mm=t[1].outer_diameter_mm / 2)
+
+
+def mm_per_px(scene) -> float:
+    """Mean pixel footprint (mm) of the scene's cameras at the robot's base."""
+    return float(np.mean([c.mm_per_pixel_at(scene.rig.base_point_world_mm) for c in scene.rig.cameras.values()]))

@@ -15,17 +15,13 @@ methods share each drawn scene.
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import strategies as S  # noqa: E402
-from test_properties import NO_SHRINK, _method_available, _mm_per_px, _n, _params_for  # noqa: E402
+import strategies as S
 
 from recon.errors import FrameError  # noqa: E402
 from recon.metrics import backbone_errors  # noqa: E402
@@ -33,7 +29,7 @@ from recon.metrics import backbone_errors  # noqa: E402
 #: Background frames depend on the seed, so examples that share them use the paper's.
 PAPER_SEED = st.just(None)
 
-_FAST_MISSING = pytest.mark.skipif(not _method_available("fast"), reason="recon.fast is not importable or registers no 'fast' method")
+_FAST_MISSING = pytest.mark.skipif(not S.method_available("fast"), reason="recon.fast is not importable or registers no 'fast' method")
 
 
 def _fast(*marks):
@@ -93,7 +89,7 @@ def accuracy_bounds(method: str, result, scene) -> dict:
     if method == "paper":
         voxel = float(np.max(result.voxel_size_mm))
         return {"mean_error_mm": voxel, "tip_error_mm": np.inf, "length_error_mm": 3 * voxel}
-    px = _mm_per_px(scene)
+    px = S.mm_per_px(scene)
     return {"mean_error_mm": 1.5 * px, "tip_error_mm": 3 * px, "length_error_mm": 9 * px}
 
 
@@ -105,7 +101,7 @@ def scored(method: str, scene, stacks: dict, frame, clip_to_base: bool) -> tuple
     """
     from recon.methods import prepare
 
-    r = prepare(method, scene.rig, stacks, _params_for(method, scene))(frame.images)
+    r = prepare(method, scene.rig, stacks, S.params_for(method, scene))(frame.images)
     pts = S.beyond_base(r.points_world_mm, scene.rig) if clip_to_base else r.points_world_mm
     assert len(pts) >= 2, f"{method}: no reconstructed point beyond the base plane"
     return backbone_errors(pts, frame.backbone.p_world_mm), accuracy_bounds(method, r, scene)
@@ -134,12 +130,12 @@ def assert_frame_error_or_accurate(method: str, data: dict, clip_to_base: bool =
     _assert_within(e, bounds, (method, "returned a shape instead of a FrameError", frame.joints))
 
 
-EXAMPLES = _n(1, 12)
+EXAMPLES = S.examples(1, 12)
 
 
 # ============================================================================= (a) pointing at a camera
 @pytest.mark.parametrize("method", ["paper", _fast()])
-@settings(phases=NO_SHRINK, max_examples=EXAMPLES)
+@settings(phases=S.NO_SHRINK, max_examples=EXAMPLES)
 @given(data=S.pointing_dicts(5.0, 90.0, seeds=PAPER_SEED))
 def test_tube_at_5_deg_or_more_to_a_camera_axis_is_accurate(method, data):
     """A straight robot at 5-90 deg to either camera's optical axis (at 5 deg the camera sees
@@ -155,7 +151,7 @@ def test_tube_at_5_deg_or_more_to_a_camera_axis_is_accurate(method, data):
                             "Re-measured after issue 13: right at 2.5 deg, wrong at 3.0 and 3.5 deg; the ci "
                             "profile's draws miss those angles and pass")),
 ])
-@settings(phases=NO_SHRINK, max_examples=EXAMPLES)
+@settings(phases=S.NO_SHRINK, max_examples=EXAMPLES)
 @given(data=S.pointing_dicts(0.0, 4.0, seeds=PAPER_SEED))
 def test_tube_end_on_to_a_camera_is_a_frame_error_or_right(method, data):
     """0-4 deg from a camera's axis (end on: a blob ~14 px across): a FrameError or the right shape."""
@@ -164,7 +160,7 @@ def test_tube_end_on_to_a_camera_is_a_frame_error_or_right(method, data):
 
 # ============================================================================= (b) along an epipolar plane
 @pytest.mark.parametrize("method", ["paper", _fast()])
-@settings(phases=NO_SHRINK, max_examples=EXAMPLES)
+@settings(phases=S.NO_SHRINK, max_examples=EXAMPLES)
 @given(data=S.epipolar_dicts(20.0, 90.0, seeds=PAPER_SEED))
 def test_tube_at_20_deg_or_more_to_the_epipolar_planes_is_accurate(method, data):
     """A straight robot at 20-90 deg to the epipolar planes x = const (90: along x, the paper's
@@ -182,7 +178,7 @@ def test_tube_at_20_deg_or_more_to_the_epipolar_planes_is_accurate(method, data)
         "mean 0.18-3.6 mm > 0.175 mm (1.5 px), no FrameError. Re-measured after issue 13: right at 0.5 deg, wrong "
         "at 1.5 and 3 deg; the ci profile's draws miss those and pass"))),
 ])
-@settings(phases=NO_SHRINK, max_examples=EXAMPLES)
+@settings(phases=S.NO_SHRINK, max_examples=EXAMPLES)
 @given(data=S.epipolar_dicts(0.0, 15.0, seeds=PAPER_SEED))
 def test_tube_near_an_epipolar_plane_is_a_frame_error_or_right(method, data):
     """0-15 deg from the epipolar planes: a FrameError or the right shape (arc length included)."""
@@ -197,7 +193,7 @@ def test_tube_near_an_epipolar_plane_is_a_frame_error_or_right(method, data):
         "bends of 90-240 deg a backbone 0.3-17 mm short, tip error 1.0-14.6 mm > 0.35 mm (3 px), no FrameError; "
         "90 deg already fails: the tip runs along an epipolar plane"))),
 ])
-@settings(phases=NO_SHRINK, max_examples=EXAMPLES)
+@settings(phases=S.NO_SHRINK, max_examples=EXAMPLES)
 @given(data=S.fold_dicts((90.0, 240.0), (0.0, 3.0), seeds=PAPER_SEED))
 def test_fold_seen_edge_on_by_one_camera_is_a_frame_error_or_right(method, data):
     """The inner tube bends 90-240 deg in a plane within 3 deg of the side camera's line of sight:
@@ -218,7 +214,7 @@ def test_fold_seen_edge_on_by_one_camera_is_a_frame_error_or_right(method, data)
         "measured: right only with the fold tilted 20-45 deg; at 5-10 and 70-85 deg mean 0.19-3.1 mm > 0.175 mm "
         "(a leg nearly edge on in one view), no FrameError"))),
 ])
-@settings(phases=NO_SHRINK, max_examples=EXAMPLES)
+@settings(phases=S.NO_SHRINK, max_examples=EXAMPLES)
 @given(data=S.fold_dicts((180.0, 180.0), (5.0, 85.0), seeds=PAPER_SEED))
 def test_fold_seen_apart_by_both_cameras_is_a_frame_error_or_right(method, data):
     """A 180 deg fold tilted 5-85 deg out of the side camera's line of sight (both views see two
@@ -228,7 +224,7 @@ def test_fold_seen_apart_by_both_cameras_is_a_frame_error_or_right(method, data)
 
 # ============================================================================= (d) low contrast
 @pytest.mark.parametrize("method", ["paper", _fast()])
-@settings(phases=NO_SHRINK, max_examples=EXAMPLES)
+@settings(phases=S.NO_SHRINK, max_examples=EXAMPLES)
 @given(data=S.contrast_dicts(0.65, 0.86, seeds=PAPER_SEED))
 def test_backdrop_40_gray_levels_brighter_than_the_tubes_is_accurate(method, data):
     """A plain backdrop of gray 0.65-0.86 behind the paper's Nitinol tubes (median contrast
@@ -248,7 +244,7 @@ def test_backdrop_40_gray_levels_brighter_than_the_tubes_is_accurate(method, dat
         "and at 0.3-0.35 (+32 to +43), just outside at 0.55 (-13: mean 0.18 mm). Re-measured after issue 13: "
         "wrong at 0.4, right at 0.45 and 0.5; the ci draws miss 0.4 and pass"))),
 ])
-@settings(phases=NO_SHRINK, max_examples=EXAMPLES)
+@settings(phases=S.NO_SHRINK, max_examples=EXAMPLES)
 @given(data=S.contrast_dicts(0.3, 0.55, seeds=PAPER_SEED))
 def test_backdrop_as_gray_as_the_tubes_is_a_frame_error_or_right(method, data):
     """A plain backdrop of gray 0.3-0.55, around the tubes' own median (~0.5): a FrameError or the right shape."""

@@ -30,24 +30,25 @@ try:                                    # tests/ as a package or as a rootdir
 except ImportError:
     from fil_fixtures import *  # noqa: F401,F403
 
+from figures import record
+
+from rig.cli import main as cli
 from rig.hw.actuator import JointValues, SoftLimits
 from rig.hw.camera import Camera, CameraError, CameraPair, EndOfStream, OpenCVCamera
-from rig.cli import main as cli
 from rig.hw.experiment import ExperimentRunner, SequenceError, load_sequence
 from rig.hw.rigfile import RigFileError, load_rig_file, rig_file_from_dict
+from rig.hw.virtual import Trapezoid, TwinActuator
 from rig.scenefiles import scenes_dir
 from rig.session import Session
-from rig.hw.virtual import Trapezoid, TwinActuator
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = scenes_dir()
 SCENE = SCENES / "paper.toml"
-REPORT: dict = {}
 
 
 def _report(key, value):
-    REPORT[key] = value
-    print(f"[experiment] {key}: {value}")
+    """A measured figure, printed in the terminal summary (tests/figures.py)."""
+    record("experiment", key, value)
 
 
 # A short sequence: the structure of scenes/paper-sequence.toml with few frames.
@@ -560,8 +561,3 @@ def test_dry_run(capsys):
     out = capsys.readouterr().out
     assert "20 frame pairs" in out and "opencv" in out
 
-
-def test_zz_report():
-    """Prints the figures measured above (keep last)."""
-    for k, v in REPORT.items():
-        print(f"[experiment] {k}: {v}")

@@ -46,6 +46,8 @@ from rig.hw.arduino import (
     F_WDOG,
 )
 
+from figures import record
+
 try:                                    # tests/ as a package or as a rootdir
     from .fil_fixtures import *  # noqa: F401,F403
 except ImportError:
@@ -57,13 +59,11 @@ LINK_TIMEOUT_MS = 100.0
 #: "nothing moved": a holding servo creeps by a few counts (2.5 um each);
 #: any refused MOV in these tests would have moved >= 5 mm = 2000 counts
 HOLD_COUNTS = 16
-#: measured figures, printed at the end of the run (pytest -s / -rA)
-REPORT: dict[str, str] = {}
 
 
 def _report(key, value):
-    REPORT[key] = value
-    print(f"[fil] {key}: {value}")
+    """A measured figure, printed in the terminal summary (tests/figures.py)."""
+    record("firmware-in-the-loop", key, value)
 
 
 # ===========================================================================
@@ -731,8 +731,3 @@ def test_closed_actuator_errors_name_port(rig):
     with pytest.raises(ConnectionError, match=f"{h.pty}.*STAT"):
         act.status()
 
-
-def test_zz_report():
-    """Prints the measured figures collected above (run with -s)."""
-    if REPORT:
-        print("\n".join(["", "firmware-in-the-loop figures:"] + [f"  {k}: {v}" for k, v in REPORT.items()]))

@@ -8,35 +8,19 @@ down in docs/envelope.md.
 """
 from __future__ import annotations
 
-import os
 import re
-import sys
-from dataclasses import replace
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
-from hypothesis import Phase, assume, given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import strategies as S  # noqa: E402
+import strategies as S
 
 from recon.camera import Camera, look_at  # noqa: E402
 from recon.errors import FrameError  # noqa: E402
 from recon.metrics import backbone_errors  # noqa: E402
-
-LONG = os.environ.get("HYPOTHESIS_PROFILE") == "long"
-
-
-def _n(ci: int, long: int) -> int:
-    return long if LONG else ci
-
-
-#: Rendering properties do not shrink: every shrink step re-renders a scene (seconds each).
-NO_SHRINK = (Phase.explicit, Phase.reuse, Phase.generate)
-
 
 def _f(lo, hi):
     return st.floats(lo, hi, allow_nan=False, allow_infinity=False)
@@ -55,7 +39,7 @@ def cameras(draw) -> Camera:
     return Camera("cam", w, h, K, dist=dist, T_cam_world=look_at(eye, [0.0, 0.0, 0.0], down))
 
 
-@settings(max_examples=_n(60, 1000))
+@settings(max_examples=S.examples(60, 1000))
 @given(cameras(), st.lists(st.tuples(_f(0, 1023), _f(0, 767)), min_size=1, max_size=20), _f(50.0, 800.0))
 def test_projection_backprojection_round_trip(cam, pixels, depth):
     """A pixel's ray, followed to any depth, projects back onto that pixel."""
@@ -84,7 +68,7 @@ def closest_point_of_rays(o1, d1, o2, d2) -> np.ndarray:
     return 0.5 * ((o1 + t[:, None] * d1) + (o2 + s[:, None] * d2))
 
 
-@settings(max_examples=_n(40, 500))
+@settings(max_examples=S.examples(40, 500))
 @given(S.rig_perturbations(), st.lists(st.tuples(_f(0, 90), _f(-30, 30), _f(-30, 30)), min_size=1, max_size=30))
 def test_triangulating_projected_points_recovers_them(rig_table, points):
     # Points in x 0..90, |y|, |z| <= 30 mm: almost always in both views, but not always at the closest camera
@@ -137,7 +121,7 @@ def robots_in_view(draw):
     return scene, j, solve(scene.robot, j, scene.model)
 
 
-@settings(phases=NO_SHRINK, max_examples=_n(8, 150))
+@settings(phases=S.NO_SHRINK, max_examples=S.examples(8, 150))
 @given(robots_in_view(), st.sampled_from([40, 70, 100]))
 def test_carving_keeps_every_voxel_on_the_true_backbone(robot, resolution):
     """With exact (thin, rasterized) centerlines, carving never removes a voxel the true backbone passes through."""
@@ -164,7 +148,7 @@ def test_carving_keeps_every_voxel_on_the_true_backbone(robot, resolution):
 
 
 # ============================================================================= background
-@settings(max_examples=_n(25, 300))
+@settings(max_examples=S.examples(25, 300))
 @given(
     n=st.integers(6, 20),
     sigma=_f(0.3, 4.0),
@@ -222,26 +206,6 @@ def test_background_model_on_twin_frames_within_their_noise(paper_backgrounds, p
         assert float(np.percentile(z, 99)) <= 3.0, name
 
 
-# ============================================================================= methods on twin scenes
-def _method_available(name: str) -> bool:
-    from recon.methods import get_method
-
-    try:
-        get_method(name)
-    except ValueError:
-        return False
-    return True
-
-
-def _params_for(method: str, scene):
-    """The method's default parameters with the scene's tube radii (what a user of that robot sets)."""
-    from recon.methods import get_method
-
-    t = scene.robot.tubes
-    return replace(get_method(method).params_type(), outer_tube_radius_mm=t[0].outer_diameter_mm / 2,
-                   inner_tube_radius_mm=t[1].outer_diameter_mm / 2)
-
-
 def _render(scene, n_background=6):
     from twin.simulator import Twin
 
@@ -252,13 +216,9 @@ def _render(scene, n_background=6):
     return stacks, frames
 
 
-def _mm_per_px(scene) -> float:
-    return float(np.mean([c.mm_per_pixel_at(scene.rig.base_point_world_mm) for c in scene.rig.cameras.values()]))
-
-
 def _mean_bound(method, scene, result) -> float:
     """The mean error (mm) a method must stay within: one voxel edge (paper), 1.5 pixel footprints (fast)."""
-    return float(np.max(result.voxel_size_mm)) if method == "paper" else 1.5 * _mm_per_px(scene)
+    return float(np.max(result.voxel_size_mm)) if method == "paper" else 1.5 * S.mm_per_px(scene)
 
 
 def _check_accuracy(method, scene, stacks, frames, length=False):
@@ -266,14 +226,14 @@ def _check_accuracy(method, scene, stacks, frames, length=False):
     length within 3 mean bounds (a lost tube shows as a shorter backbone first)."""
     from recon.methods import prepare
 
-    rec = prepare(method, scene.rig, stacks, _params_for(method, scene))
+    rec = prepare(method, scene.rig, stacks, S.params_for(method, scene))
     for fr in frames:
         r = rec(fr.images)
         e = backbone_errors(r.points_world_mm, fr.backbone.p_world_mm)
         bound = _mean_bound(method, scene, r)
         assert e["mean_error_mm"] <= bound, (e, bound, fr.joints)
         if method == "fast":
-            assert e["tip_error_mm"] <= 3 * _mm_per_px(scene), (e, bound, fr.joints)
+            assert e["tip_error_mm"] <= 3 * S.mm_per_px(scene), (e, bound, fr.joints)
         if length:
             assert abs(e["length_error_mm"]) <= 3 * bound, (e, bound, fr.joints)
 
@@ -281,7 +241,7 @@ def _check_accuracy(method, scene, stacks, frames, length=False):
 ENVELOPE = S.scene_dicts(frames=2)
 
 
-@settings(phases=NO_SHRINK, max_examples=_n(3, 40))
+@settings(phases=S.NO_SHRINK, max_examples=S.examples(3, 40))
 @given(ENVELOPE)
 def test_paper_method_accurate_inside_the_envelope(data):
     """Inside the validated envelope the paper's method is within one voxel edge (mean error)."""
@@ -291,8 +251,8 @@ def test_paper_method_accurate_inside_the_envelope(data):
     _check_accuracy("paper", scene, *_render(scene))
 
 
-@pytest.mark.skipif(not _method_available("fast"), reason="recon.fast is not importable or registers no 'fast' method")
-@settings(phases=NO_SHRINK, max_examples=_n(3, 40))
+@pytest.mark.skipif(not S.method_available("fast"), reason="recon.fast is not importable or registers no 'fast' method")
+@settings(phases=S.NO_SHRINK, max_examples=S.examples(3, 40))
 @given(ENVELOPE)
 def test_fast_method_accurate_inside_the_envelope(data):
     """Inside the validated envelope the fast method is within 1.5 pixel footprints (mean) and 3 (tip)."""
@@ -303,11 +263,11 @@ def test_fast_method_accurate_inside_the_envelope(data):
 
 
 # ============================================================================= outside the envelope
-METHODS = ["paper", pytest.param("fast", marks=pytest.mark.skipif(not _method_available("fast"), reason="recon.fast is not importable or registers no 'fast' method"))]
+METHODS = ["paper", pytest.param("fast", marks=pytest.mark.skipif(not S.method_available("fast"), reason="recon.fast is not importable or registers no 'fast' method"))]
 
 
 @pytest.mark.parametrize("method", METHODS)
-@settings(phases=NO_SHRINK, max_examples=_n(2, 30))
+@settings(phases=S.NO_SHRINK, max_examples=S.examples(2, 30))
 @given(inner=_f(150.0, 200.0), rot=_f(-180.0, 180.0))
 def test_robot_out_of_view_is_a_frame_error(method, paper_twin, paper_backgrounds, inner, rot):
     """A robot running off the images (inner tube out 150-200 mm, the view ends near x = 105 mm)
@@ -323,7 +283,7 @@ def test_robot_out_of_view_is_a_frame_error(method, paper_twin, paper_background
 
 
 @pytest.mark.parametrize("method", METHODS)
-@settings(phases=NO_SHRINK, max_examples=_n(1, 20))
+@settings(phases=S.NO_SHRINK, max_examples=S.examples(1, 20))
 @given(data=S.scene_dicts(rig=False, light=False, noise=False, frames=1), inner_od=_f(0.08, 0.14))
 def test_tube_too_thin_is_a_frame_error_or_right(method, data, inner_od):
     """An inner tube of ~0.7-1.2 px: either a FrameError, or (if resolved after all) the right shape, never
@@ -335,7 +295,7 @@ def test_tube_too_thin_is_a_frame_error_or_right(method, data, inner_od):
     data["robot"]["tubes"][1]["inner_diameter_mm"] = inner_od / 2
     scene = scene_from_dict(data)
     stacks, frames = _render(scene)
-    rec = prepare(method, scene.rig, stacks, _params_for(method, scene))
+    rec = prepare(method, scene.rig, stacks, S.params_for(method, scene))
     try:
         r = rec(frames[0].images)
     except FrameError:
@@ -355,7 +315,7 @@ def _scene_with_inner_width(width_px: float):
 
     if width_px not in _LIMIT_SCENES:
         data = S.with_sequence(S.paper_dict(), [([50.0, 85.0], [0.0, 30.0])])
-        od = width_px * _mm_per_px(scene_from_dict(data))
+        od = width_px * S.mm_per_px(scene_from_dict(data))
         data["robot"]["tubes"][1]["outer_diameter_mm"] = round(od, 4)
         data["robot"]["tubes"][1]["inner_diameter_mm"] = round(0.55 * od, 4)
         scene = scene_from_dict(data)
@@ -384,7 +344,7 @@ def test_tube_just_below_the_width_limit_is_a_frame_error(method):
 
     limit = _width_limit(method)
     scene, stacks, frames = _scene_with_inner_width(limit - 0.25)
-    rec = prepare(method, scene.rig, stacks, _params_for(method, scene))
+    rec = prepare(method, scene.rig, stacks, S.params_for(method, scene))
     pattern = rf"^(side|top): inner tube is (\d+\.\d) px wide at the robot base, less than min_tube_width_px = {limit:g}: too thin to resolve$"
     for _ in range(2):
         with pytest.raises(FrameError, match=pattern) as info:

@@ -282,8 +282,9 @@ def test_resume_skips_finished_frames_and_refuses_another_method_or_parameters(s
 def test_sigkill_mid_run_keeps_every_finished_frame_and_resume_finishes(session, tmp_path, monkeypatch):
     out = tmp_path / "out"
     journal = out / "frames.jsonl"
-    code = f"import sys; sys.path.insert(0, {str(TESTS)!r}); import test_run_dir as t; t.run_slow({str(session)!r}, {str(out)!r})"
-    proc = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    code = f"import test_run_dir as t; t.run_slow({str(session)!r}, {str(out)!r})"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(TESTS), os.environ.get("PYTHONPATH")])))
+    proc = subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     try:
         deadline = time.monotonic() + 120
         while not (journal.exists() and len(journal.read_text().splitlines()) >= 3):  # header + 2 frames
