@@ -1,4 +1,16 @@
-"""rig: hardware abstraction (cameras, actuators), recording and replay, experiments and the CLI."""
+"""rig: everything around the pipeline, in three wings over shared ground.
+
+* ``rig.hw``: camera and actuator backends, rig files, the firmware and its emulator,
+  experiments on a rig, imports of a lab's recordings;
+* ``rig.bench``: sessions reconstructed and scored, peers, comparison, tuning, reports,
+  scene renders and their cache;
+* ``rig.cli``: the ``ctr-bench`` commands (argparse only);
+* shared ground: the session format (:mod:`rig.session`, :mod:`rig.session_checks`), the
+  run directory (:mod:`rig.rundir`, :mod:`rig.backbone_csv`), progress, tables, scene files
+  and the live viewer.
+
+The wings do not import each other; ``cli`` imports both.
+"""
 
 from recon._lazy import lazy_exports
 
