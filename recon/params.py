@@ -1,4 +1,4 @@
-"""Parameter files: nested frozen dataclasses to and from TOML-like dicts.
+"""Parameter files: nested frozen dataclasses to and from TOML-like dicts, and the one TOML writer.
 
 ``ctr-bench reconstruct --params FILE`` reads a TOML file whose tables mirror a
 method's parameter dataclass (``[silhouette] threshold = 0.3``); ``ctr-bench
@@ -13,6 +13,9 @@ import sys
 import types
 import typing
 from pathlib import Path
+
+import numpy as np
+import tomli_w
 
 from .memory import carving_bytes, check_memory
 from .textfile import read_text
@@ -41,6 +44,23 @@ def params_from_dict(cls, data: dict, source: str = "params", path: str = ""):
     Every value is checked before the dataclass sees it: its type, finite (TOML has
     ``inf`` and ``nan``), >= 0 (> 0 for steps and gaps, see ``_POSITIVE``), and a carving
     resolution within the memory bound (:func:`recon.memory.carving_bytes`).
+
+    Parameters
+    ----------
+    cls : type
+        A method's parameter dataclass (e.g. :class:`recon.paper.PaperParams`).
+    data : dict
+        Its fields by name, a nested dataclass as a nested dict (a TOML table). Values
+        are in the units their field names say (mm, px, voxels).
+    source : str, optional
+        The file or option the values came from, for messages.
+    path : str, optional
+        Dotted key of ``data`` in the whole document (nested tables), for messages.
+
+    Returns
+    -------
+    cls
+        The parameters.
 
     Raises
     ------
@@ -161,7 +181,19 @@ def _check_memory(params, source: str, path: str) -> None:
 
 
 def params_to_dict(params) -> dict:
-    """Nested dict of a parameter dataclass (tuples as lists), ready for TOML/JSON."""
+    """Nested dict of a parameter dataclass (tuples as lists), ready for TOML/JSON.
+
+    Parameters
+    ----------
+    params : dataclass instance
+        A method's parameters (nested dataclasses become nested dicts).
+
+    Returns
+    -------
+    dict
+        Field name -> value; :func:`params_from_dict` reads it back (None values are
+        left out of a TOML file by :func:`dumps_toml`).
+    """
     out = {}
     for f in dataclasses.fields(params):
         v = getattr(params, f.name)
@@ -174,41 +206,82 @@ def params_to_dict(params) -> dict:
     return out
 
 
-def _toml_value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, (int, float)):
-        return repr(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+def _plain(value, where: str):
+    """``value`` as the Python types tomli_w writes (numpy scalars and arrays converted); TypeError naming ``where``."""
+    if isinstance(value, dict):
+        out = {}
+        for k, v in value.items():
+            key = f"{where}.{k}" if where else str(k)
+            if not isinstance(k, str):
+                raise TypeError(f"{key}: a TOML key must be a string, got {type(k).__name__}")
+            if v is not None:  # TOML has no null: an unset optional value leaves its key out
+                out[k] = _plain(v, key)
+        return out
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, (list, tuple)):
+        return [_plain(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    if isinstance(value, np.generic):
+        value = value.item()  # np.float64 -> float, np.int64 -> int, np.bool_ -> bool, np.str_ -> str
+    if isinstance(value, (bool, int, float, str)):
+        return value
+    raise TypeError(f"{where or 'top level'}: cannot write {type(value).__name__} to TOML")
 
 
 def dumps_toml(data: dict, header: str = "") -> str:
-    """A small TOML writer for parameter files (scalars, lists, nested tables)."""
-    lines = [f"# {h}" for h in header.splitlines()] if header else []
+    """TOML text of ``data`` (tomli_w), after an optional comment header: the one TOML writer of ctr-bench.
 
-    def emit(table: dict, prefix: str):
-        scalars = {k: v for k, v in table.items() if not isinstance(v, dict) and v is not None}
-        tables = {k: v for k, v in table.items() if isinstance(v, dict)}
-        if prefix and scalars:
-            lines.append(f"\n[{prefix}]")
-        for k, v in scalars.items():
-            lines.append(f"{k} = {_toml_value(v)}")
-        for k, v in tables.items():
-            emit(v, f"{prefix}.{k}" if prefix else k)
+    Parameter files, robot files (:mod:`twin.robotfile`) and generated scenes
+    (:mod:`twin.scenegen`) are written through it.
 
-    emit(data, "")
-    return "\n".join(lines).lstrip("\n") + "\n"
+    Parameters
+    ----------
+    data : dict
+        Tables (dicts, nested), arrays (lists, tuples, numpy arrays) and scalars (bool,
+        int, float, str and their numpy types). A table's None values are left out:
+        TOML has no null.
+    header : str, optional
+        Comment text put before the document, one ``# `` line per line (``#`` for an
+        empty one) and a blank line after it.
+
+    Returns
+    -------
+    str
+        The document; :mod:`tomllib` reads it back to ``data`` (numpy values as Python ones).
+
+    Raises
+    ------
+    TypeError
+        One line naming the key of a value TOML cannot hold (None in an array, an object).
+    """
+    if not isinstance(data, dict):
+        raise TypeError(f"TOML document: must be a dict of keys and tables, got {type(data).__name__}")
+    text = tomli_w.dumps(_plain(data, ""))
+    if not header:
+        return text
+    return "".join(f"# {line}".rstrip() + "\n" for line in header.splitlines()) + "\n" + text
 
 
 def read_params_file(path, method: str | None = None) -> dict:
     """The tables of a TOML parameter file, without its top-level ``method`` key.
 
-    Raises ValueError (one line, naming the file) when the file is missing or
-    unreadable, is not TOML, or was written for another method than ``method``.
+    Parameters
+    ----------
+    path : str or Path
+        The parameter file (``ctr-bench tune`` writes them).
+    method : str, optional
+        The method the parameters are for; a file written for another one is refused.
+
+    Returns
+    -------
+    dict
+        The file's keys and tables, unchecked (:func:`params_from_dict` checks them).
+
+    Raises
+    ------
+    ValueError
+        One line naming the file: missing or unreadable, not TOML, or written for
+        another method than ``method``.
     """
     path = Path(path)
     text = read_text(path, "parameter", "TOML parameter file")
@@ -225,5 +298,24 @@ def read_params_file(path, method: str | None = None) -> dict:
 
 
 def load_params(cls, path, method: str | None = None):
-    """Read a TOML parameter file into ``cls`` (see :func:`read_params_file`); unset keys keep defaults."""
+    """Read a TOML parameter file into ``cls`` (see :func:`read_params_file`); unset keys keep defaults.
+
+    Parameters
+    ----------
+    cls : type
+        The method's parameter dataclass.
+    path : str or Path
+        The parameter file.
+    method : str, optional
+        The method the parameters are for (see :func:`read_params_file`).
+
+    Returns
+    -------
+    cls
+
+    Raises
+    ------
+    ValueError
+        One line naming the file and the key (:func:`params_from_dict`).
+    """
     return params_from_dict(cls, read_params_file(path, method), source=str(path))

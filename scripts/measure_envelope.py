@@ -37,7 +37,6 @@ Writes ``envelope.csv`` in ``--out`` and prints one table per case.
 """
 from __future__ import annotations
 
-import twin  # noqa: F401  (first: chooses the OpenGL platform before anything imports PyOpenGL)
 
 import argparse
 import csv

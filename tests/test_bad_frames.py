@@ -17,7 +17,8 @@ import pytest
 from recon.background import EigenBackgroundParams
 from rig.bench.reconstruct import format_table, reconstruct_session
 from rig.session import Session, SessionError, SessionWriter
-from twin.record import robot_to_dict, truth_arrays
+from twin.record import truth_arrays
+from twin.robotfile import robot_to_dict
 from twin.robot import Joints
 
 N_BACKGROUND = 8

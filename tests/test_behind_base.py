@@ -6,7 +6,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import twin  # noqa: F401  (selects the GL platform before anything imports OpenGL)
 from recon.camera import Camera, look_at
 from recon.errors import FrameError
 from recon.methods import prepare

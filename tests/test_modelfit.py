@@ -33,8 +33,8 @@ from twin.modelfit import (
     split_holdout,
     verify,
 )
-from twin.record import robot_to_dict
 from twin.robot import Joints
+from twin.robotfile import robot_to_dict
 from twin.scene import load_scene, scene_from_dict
 
 if sys.version_info >= (3, 11):

@@ -95,7 +95,7 @@ def rendered(paper_twin):
 
 def write_session(directory: Path, rendered, scene, n_frames: int = N_FRAMES) -> Path:
     """A session repeating the rendered frame ``n_frames`` times (joints and truth included, for verify)."""
-    from twin.record import robot_to_dict
+    from twin.robotfile import robot_to_dict
 
     meta = {"scene": scene.source, "scene_name": scene.name, "robot": robot_to_dict(scene.robot, scene.model)}
     with SessionWriter(directory, scene.rig, source="twin", n_tubes=scene.robot.n_tubes, meta=meta) as w:

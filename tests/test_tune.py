@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import twin  # noqa: F401  (selects the GL platform before anything imports OpenGL)
 from recon.fast import FastParams
 from recon.paper import PaperParams
 from recon.params import load_params

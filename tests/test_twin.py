@@ -1,12 +1,46 @@
-"""The twin renders what its ground truth says: silhouettes, areas, reproducibility, meshes."""
+"""The twin renders what its ground truth says: silhouettes, areas, reproducibility, meshes; only its renderer needs OpenGL."""
+import json
+import os
+import subprocess
+import sys
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from twin.gl import available_platforms
 from twin.groundtruth import extend_to_mesh_start, inside_fraction, projected_tube_area_px
 from twin.mesh import tube_meshes
 from twin.simulator import Twin
+
+#: Imports the modules named on the command line, then prints what of OpenGL they brought in.
+_PROBE = """
+import importlib, json, os, sys
+for name in sys.argv[1:]:
+    importlib.import_module(name)
+print(json.dumps({"opengl": "OpenGL" in sys.modules, "platform": os.environ.get("PYOPENGL_PLATFORM")}))
+"""
+
+
+def _fresh_import(*modules) -> dict:
+    """What importing ``modules`` does in a fresh, isolated interpreter (``-I``: no PYTHON* variables, no user site,
+    no working directory on the path), with no OpenGL platform chosen beforehand."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PYOPENGL_PLATFORM", "CTR_BENCH_GL")}
+    out = subprocess.run([sys.executable, "-I", "-c", _PROBE, *modules], env=env, capture_output=True, text=True,
+                         check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_kinematics_scene_and_fit_import_no_opengl():
+    # fit, verify and experiment need only these: they must start on a machine without EGL or OSMesa.
+    assert _fresh_import("twin", "twin.kinematics", "twin.scene", "twin.modelfit", "twin.robot",
+                         "twin.robotfile") == {"opengl": False, "platform": None}
+
+
+@pytest.mark.skipif(not available_platforms(), reason="no offscreen OpenGL library on this machine")
+def test_the_renderer_chooses_the_platform_at_its_import():
+    seen = _fresh_import("twin.render")
+    assert seen["opengl"] and seen["platform"] in available_platforms()
 
 
 @pytest.fixture(scope="module")

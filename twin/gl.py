@@ -1,6 +1,8 @@
 """Choose the offscreen OpenGL platform before anything imports PyOpenGL.
 
 PyOpenGL binds its platform once, at first import, from ``PYOPENGL_PLATFORM``.
+Only :mod:`twin.render` calls :func:`select_platform` (when it is imported); this
+module itself imports no OpenGL, so :func:`available_platforms` is safe anywhere.
 We support OSMesa (CPU, ``libOSMesa``; Mesa dropped it in 25.1) and EGL (Mesa's
 EGL renders without a GPU through llvmpipe, and uses a GPU where one exists).
 
@@ -49,7 +51,7 @@ def select_platform(preferred: str | None = None) -> str:
         current = os.environ.get("PYOPENGL_PLATFORM")
         if current is None:
             raise RuntimeError(
-                "OpenGL was imported before the twin chose an offscreen platform: import twin first, "
+                "OpenGL was imported before the twin chose an offscreen platform: import twin.render first, "
                 "or set PYOPENGL_PLATFORM=osmesa (or egl)"
             )
         if wanted and wanted != current:

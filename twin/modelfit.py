@@ -47,14 +47,12 @@ about the base's own x, y, z axes applied to the nominal base orientation).
 ``<tube>`` is a tube name or its index (0 = outermost).
 
 Units: mm, 1/mm, deg, GPa. Robot files: a TOML ``[robot]`` table exactly as in a
-scene (see docs/scenes.md), optionally with ``[actuator]`` joint offsets
-(:func:`load_robot_file`, :func:`robot_to_toml`).
+scene (see docs/scenes.md), optionally with ``[actuator]`` joint offsets; :mod:`twin.robotfile`
+reads and writes them (here as a :class:`ModelState`: :func:`load_robot_file`, :func:`robot_to_toml`).
 """
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -62,13 +60,10 @@ from scipy.stats import t as student_t
 
 from recon.metrics import point_to_polyline_distances
 
+from . import robotfile
 from .kinematics import MODELS, solve
 from .robot import Backbone, Joints, Robot, Tube
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from .schema import SceneError
 
 __all__ = [
     "ModelFitError",
@@ -146,102 +141,36 @@ class Frame:
 
 # ----------------------------------------------------------------------------- robot files
 def robot_from_dict(d: dict, source: str = "session.json") -> tuple:
-    """``(Robot, model)`` from :func:`twin.record.robot_to_dict`'s JSON form."""
-    try:
-        tubes = tuple(Tube(**t) for t in d["tubes"])
-        robot = Robot(tubes=tubes, T_world_base=np.asarray(d.get("T_world_base", np.eye(4)), float))
-        model = d.get("model", "bending")
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ModelFitError(f"{source}: robot: not a valid robot description ({exc})") from None
-    return robot, model
+    """``(Robot, model)`` from session.json's ``robot`` (:func:`twin.robotfile.robot_from_dict`); ModelFitError if invalid."""
+    return robotfile.robot_from_dict(d, source, ModelFitError)
 
 
 def load_robot_file(path) -> ModelState:
-    """A robot file: a TOML ``[robot]`` table as in a scene (+ ``[[robot.tubes]]``).
+    """The :class:`ModelState` of a robot file (:func:`twin.robotfile.read_robot_file`).
 
-    Optional tables: ``[actuator]`` with ``rotation_offset_deg`` and
-    ``insertion_offset_mm`` (lists, one per tube: true joint = recorded +
-    offset), and ``[fit]`` (what :func:`robot_to_toml` writes about a fit; not
-    read). Errors name the file and the key.
+    A TOML ``[robot]`` table as in a scene (+ ``[[robot.tubes]]``), an optional
+    ``[actuator]`` table with ``rotation_offset_deg`` and ``insertion_offset_mm`` (lists,
+    one per tube: true joint = recorded + offset), and ``[fit]`` (what
+    :func:`robot_to_toml` writes about a fit; not read). Errors (ModelFitError) name the
+    file and the key.
     """
-    from .scene import SceneError, _parse_robot, _Table
-
-    path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ModelFitError(f"{path}: robot file not found") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise ModelFitError(f"{path}: cannot read robot file ({exc.__class__.__name__})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ModelFitError(f"{path}: not valid TOML ({exc})") from None
-    try:
-        top = _Table(data, "", str(path))
-        robot, model, _, _ = _parse_robot(top.table("robot", required=True), str(path))
-        act = top.table("actuator")
-        n = robot.n_tubes
-        rot = act.get("rotation_offset_deg", [0.0] * n, ("vec", n))
-        ins = act.get("insertion_offset_mm", [0.0] * n, ("vec", n))
-        act.done()
-        top.used.add("fit")
-        top.done()
+        rf = robotfile.read_robot_file(path)
     except SceneError as exc:
         raise ModelFitError(str(exc)) from None
-    return ModelState(robot, model, JointOffsets(np.asarray(ins), np.asarray(rot)))
-
-
-def _fmt(v) -> str:
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
-    if isinstance(v, (bool, np.bool_)):
-        return "true" if v else "false"
-    v = float(v)
-    if not np.isfinite(v):
-        return '"nan"'  # TOML has nan, but a quoted one reads back as text, never as a value
-    return repr(round(v, 12) if v != 0 else 0.0)
+    return ModelState(rf.robot, rf.model, JointOffsets(rf.insertion_offset_mm, rf.rotation_offset_deg))
 
 
 def robot_to_toml(state: ModelState, header: str = "", fit_table: dict | None = None) -> str:
-    """A robot file (TOML) for ``state``; :func:`load_robot_file` reads it back.
+    """A robot file (TOML) for ``state`` (:func:`twin.robotfile.robot_file_toml`); :func:`load_robot_file` reads it back.
 
     The ``[robot]`` table (with its ``[[robot.tubes]]``) is a scene's robot
     table: copy it into a scene to render the twin with this robot.
     ``[actuator]`` holds the joint offsets (true = recorded + offset), and
     ``[fit]`` (optional) what the fit found, for the record.
     """
-    robot = state.robot
-    T = robot.T_world_base
-    lines = [f"# {ln}" if ln else "#" for ln in header.splitlines()]
-    if lines:
-        lines.append("")
-    lines += [
-        "[robot]",
-        f"model = {_fmt(state.model)}",
-        f"base_position_mm = {_fmt(T[:3, 3])}",
-        f"insertion_axis = {_fmt(T[:3, 2])}",
-        f"bend_axis = {_fmt(T[:3, 0])}",
-    ]
-    for t in robot.tubes:
-        lines += ["", "[[robot.tubes]]"]
-        for k, v in t.__dict__.items():
-            lines.append(f"{k} = {_fmt(v)}")
-    lines += [
-        "",
-        "[actuator]                        # true joint = recorded joint + offset (per tube, outermost first)",
-        f"rotation_offset_deg = {_fmt(state.offsets.rotation_deg)}",
-        f"insertion_offset_mm = {_fmt(state.offsets.extension_mm)}",
-    ]
-    if fit_table:
-        lines += ["", "[fit]                             # what the fit found (for the record; not read back)"]
-        for k, v in fit_table.items():
-            lines.append(f"{_quote_key(k)} = {_fmt(v)}")
-    return "\n".join(lines) + "\n"
-
-
-def _quote_key(k: str) -> str:
-    return k if all(c.isalnum() or c in "_-" for c in k) else _fmt(k)
+    return robotfile.robot_file_toml(state.robot, state.model, state.offsets.extension_mm, state.offsets.rotation_deg,
+                                     header, fit_table)
 
 
 # ----------------------------------------------------------------------------- prediction and comparison
@@ -776,7 +705,31 @@ def fit(frames: list, state: ModelState, params, *, loss: str = "soft_l1", f_sca
     if not frames:
         raise ModelFitError("no frames to fit")
     params = parse_params(params, state) if not (params and isinstance(params[0], Param)) else params
-    # Frames on which the starting model fails cannot guide the fit.
+    usable, dropped = _usable_frames(frames, state, ds_mm)
+    prob = _Problem(usable, state, params, step_mm, tip_weight, ds_mm)
+    p = len(params)
+    lo = np.minimum([(pp.lower - x) / s for pp, x, s in zip(params, prob.x0, prob.scale)], -1e-6)
+    hi = np.maximum([(pp.upper - x) / s for pp, x, s in zip(params, prob.x0, prob.scale)], 1e-6)
+    res = least_squares(prob, np.zeros(p), jac="2-point", bounds=(lo, hi), diff_step=1e-3, loss=loss,
+                        f_scale=f_scale_mm, x_scale=1.0, max_nfev=max_nfev or 60 * (p + 1), verbose=verbose,
+                        xtol=1e-10, ftol=1e-10, gtol=1e-10)
+    values = prob.x0 + prob.scale * res.x
+    std, ci, ci_f, warnings = _intervals(prob, res, values, lo, hi, loss, f_scale_mm)
+    warnings += _fit_warnings(params, prob, res, values, lo, hi)
+    r = res.fun
+    return FitResult(
+        state=prob.state(res.x), names=[pp.name for pp in params], units=[pp.unit for pp in params],
+        initial=prob.x0.copy(), values=values, std=std, ci95=ci, ci95_frames=ci_f,
+        rms_mm=float(np.sqrt(np.mean(r**2))), cost=float(res.cost), nfev=int(res.nfev), message=str(res.message),
+        frames=[fr.index for fr, _, _ in prob.meas], dropped=dropped, n_residuals=int(r.size), warnings=warnings,
+    )
+
+
+def _usable_frames(frames: list, state: ModelState, ds_mm: float) -> tuple:
+    """``(usable, dropped)``: frames the starting model predicts, and ``(index, why)`` of the others.
+
+    Frames on which the starting model fails cannot guide the fit; ModelFitError if it fails on all.
+    """
     usable, dropped = [], []
     for fr in frames:
         try:
@@ -786,23 +739,21 @@ def fit(frames: list, state: ModelState, params, *, loss: str = "soft_l1", f_sca
             dropped.append((fr.index, str(exc).splitlines()[0]))
     if not usable:
         raise ModelFitError(f"the starting model fails on every frame (frame {dropped[0][0]}: {dropped[0][1]})")
-    prob = _Problem(usable, state, params, step_mm, tip_weight, ds_mm)
-    p = len(params)
-    lo = np.minimum([(pp.lower - x) / s for pp, x, s in zip(params, prob.x0, prob.scale)], -1e-6)
-    hi = np.maximum([(pp.upper - x) / s for pp, x, s in zip(params, prob.x0, prob.scale)], 1e-6)
-    res = least_squares(prob, np.zeros(p), jac="2-point", bounds=(lo, hi), diff_step=1e-3, loss=loss,
-                        f_scale=f_scale_mm, x_scale=1.0, max_nfev=max_nfev or 60 * (p + 1), verbose=verbose,
-                        xtol=1e-10, ftol=1e-10, gtol=1e-10)
-    warnings = []
-    values = prob.x0 + prob.scale * res.x
+    return usable, dropped
+
+
+def _intervals(prob: _Problem, res, values: np.ndarray, lo: np.ndarray, hi: np.ndarray, loss: str,
+               f_scale_mm: float) -> tuple:
+    """``(std, ci95, ci95_frames, warnings)`` of the estimates (see :class:`FitResult`); NaN where not computable."""
+    p = values.size
     r = res.fun
-    m = r.size
+    warnings = []
     # Central-difference Jacobian at the solution (raw residuals), weighted as the
     # robust loss weights each residual (IRLS weights sqrt(rho'(r^2 / f^2))).
     J = _jacobian(prob, res.x, r, lo, hi)
     wts = np.sqrt(_rho_prime(loss, (r / f_scale_mm) ** 2))
     Jw, rw = J * wts[:, None], r * wts
-    dof = max(m - p, 1)
+    dof = max(r.size - p, 1)
     s2 = float(rw @ rw) / dof
     D = np.diag(prob.scale)
     std = np.full(p, np.nan)
@@ -834,6 +785,12 @@ def fit(frames: list, state: ModelState, params, *, loss: str = "soft_l1", f_sca
             warnings.append(f"frame-clustered intervals need more frames ({nf}) than parameters ({p})")
     except np.linalg.LinAlgError:
         warnings.append("the parameters are not identifiable together from these frames (singular J^T J): no confidence intervals")
+    return std, ci, ci_f, warnings
+
+
+def _fit_warnings(params: list, prob: _Problem, res, values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list:
+    """What makes the estimates doubtful: parameters at a bound, model failures during the fit, no convergence."""
+    warnings = []
     for k, pp in enumerate(params):
         if res.x[k] - lo[k] < 1e-6 or hi[k] - res.x[k] < 1e-6:
             warnings.append(f"{pp.name} ended at its bound ({values[k]:.6g}): the data push it beyond what is physical; "
@@ -843,12 +800,7 @@ def fit(frames: list, state: ModelState, params, *, loss: str = "soft_l1", f_sca
         warnings.append(f"the model failed during the fit{where} ({prob.failed[1]}); those steps were rejected")
     if not res.success:
         warnings.append(f"least squares did not converge: {res.message}")
-    return FitResult(
-        state=prob.state(res.x), names=[pp.name for pp in params], units=[pp.unit for pp in params],
-        initial=prob.x0.copy(), values=values, std=std, ci95=ci, ci95_frames=ci_f,
-        rms_mm=float(np.sqrt(np.mean(r**2))), cost=float(res.cost), nfev=int(res.nfev), message=str(res.message),
-        frames=[fr.index for fr, _, _ in prob.meas], dropped=dropped, n_residuals=int(m), warnings=warnings,
-    )
+    return warnings
 
 
 def _rho_prime(loss: str, z: np.ndarray) -> np.ndarray:

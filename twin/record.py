@@ -3,20 +3,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .robot import Joints, Robot
+from .robot import Joints
+# session.json's robot is twin.robotfile's; rig/ and tests still import robot_to_dict from here.
+from .robotfile import robot_to_dict
 from .scene import Scene
 from .simulator import Twin, TwinFrame
 
 __all__ = ["render_session", "truth_arrays", "robot_to_dict"]
-
-
-def robot_to_dict(robot: Robot, model: str) -> dict:
-    """JSON-ready robot description (for session.json; ``verify``/``fit`` read it back)."""
-    return {
-        "model": model,
-        "T_world_base": robot.T_world_base.tolist(),
-        "tubes": [dict(t.__dict__) for t in robot.tubes],
-    }
 
 
 def truth_arrays(frame: TwinFrame) -> dict:

@@ -10,14 +10,14 @@ for every frame.
 from __future__ import annotations
 
 import atexit
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from .gl import select_platform
 
-select_platform()
+# PyOpenGL binds its platform at its first import (pyrender's, below): this module alone chooses it.
+_PLATFORM = select_platform()
 
 import cv2  # noqa: E402
 import pyrender  # noqa: E402
@@ -30,10 +30,11 @@ from .backdrop import auto_texture_px, backdrop_planes, place_clutter  # noqa: E
 from .scene import Scene  # noqa: E402
 from .textures import backdrop_texture  # noqa: E402
 
-__all__ = ["SetRenderer", "View", "OPENGL_FROM_OPENCV"]
+__all__ = ["SetRenderer", "View", "T_cvcam_glcam"]
 
-# OpenCV camera axes (x right, y down, z forward) -> OpenGL's (x right, y up, z backward).
-OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+#: OpenGL camera frame (x right, y up, z backward) -> OpenCV camera frame (x right, y down,
+#: z forward): ``T_world_cvcam @ T_cvcam_glcam`` is the pose pyrender wants. (It is its own inverse.)
+T_cvcam_glcam = np.diag([1.0, -1.0, -1.0, 1.0])
 
 #: Segmentation colours of the tubes in the label pass (tube index -> RGB).
 _SEG_COLORS = [(255, 0, 0), (0, 255, 0), (0, 0, 255)]
@@ -123,7 +124,7 @@ class SetRenderer:
 
     def __init__(self, scene: Scene, supersample: int | None = None):
         self.scene = scene
-        self.platform = os.environ.get("PYOPENGL_PLATFORM", "osmesa")
+        self.platform = _PLATFORM
         self.supersample = int(supersample or (2 if self.platform == "osmesa" else 1))
         cams = list(scene.rig.cameras.values())
         self.width, self.height = cams[0].width, cams[0].height
@@ -186,20 +187,20 @@ class SetRenderer:
             tex = backdrop_texture(d.backdrop, d.backdrop_color, d.backdrop_color2, rng_seed + i, tex_px, d.pattern_scale, d.photo)
             geom = meshes.plane_mesh(plane.center_mm, plane.u_axis, plane.v_axis, plane.size_u_mm, plane.size_v_mm)
             self.pr_scene.add(_textured_plane(*geom, tex))
-        T_base = scene.robot.T_world_base
+        T_world_base = scene.robot.T_world_base
         if d.actuation_unit:
             # The actuation unit sits behind the base along -insertion: a block carrying the
             # distal pin vise (outer tube) with the proximal one (inner tube) further back.
             def to_world(p_base):
-                return (T_base[:3, :3] @ np.asarray(p_base, float).T).T + T_base[:3, 3]
+                return (T_world_base[:3, :3] @ np.asarray(p_base, float).T).T + T_world_base[:3, 3]
 
             block = meshes.box_mesh([-14.0, -14.0, -95.0], [14.0, 14.0, -18.0])
-            block.apply_transform(T_base)
+            block.apply_transform(T_world_base)
             self.pr_scene.add(_solid(block, (0.22, 0.23, 0.25), metallic=0.3, roughness=0.5))
             chuck = meshes.cylinder_mesh(to_world([0, 0, -18.0]), to_world([0, 0, -6.0]), 5.0)
             nose = trimesh.creation.cone(radius=5.0, height=7.0, sections=32)
             nose.apply_translation([0, 0, -6.0])
-            nose.apply_transform(T_base)
+            nose.apply_transform(T_world_base)
             collar = meshes.cylinder_mesh(to_world([0, 0, -6.0]), to_world([0, 0, -0.6]), 1.6)
             brass = (0.72, 0.58, 0.30)
             self.pr_scene.add(_solid(chuck, brass, metallic=0.8, roughness=0.35, smooth=True))
@@ -293,7 +294,8 @@ class SetRenderer:
         )
         if self._cam_node is not None:
             self.pr_scene.remove_node(self._cam_node)
-        self._cam_node = self.pr_scene.add(pr_cam, pose=camera.T_world_cam @ OPENGL_FROM_OPENCV)
+        T_world_glcam = camera.T_world_cam @ T_cvcam_glcam
+        self._cam_node = self.pr_scene.add(pr_cam, pose=T_world_glcam)
 
     def render(self, camera: Camera, with_truth: bool = True) -> View:
         """Render the set (and robot, if set) through ``camera`` (its pose may be jittered).

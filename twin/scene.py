@@ -7,7 +7,6 @@ got -1``.
 """
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,111 +18,16 @@ from recon.distortion import MODEL_SIZES
 from recon.memory import check_memory, render_bytes
 from recon.rigcal import RigCalibration
 
-from .robot import Joints, Robot, Tube
+from .robot import Joints, Robot
+from .robotfile import parse_robot_table
+# SceneError, _Table and read_toml are this module's names too: twin.board and rig/ import them from here.
+from .schema import _NONNEG, _POS, _REQUIRED, SceneError, _Table, read_toml
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 __all__ = ["Scene", "SceneError", "load_scene", "check_scene_cameras", "read_toml", "scene_from_dict", "NoiseModel",
            "SetDressing", "Light"]
 
 
-class SceneError(ValueError):
-    """A scene file that cannot be used; the message names file and key."""
-
-
-# ----------------------------------------------------------------------------- schema helpers
-class _Table:
-    """Typed, checked access to one TOML table; unknown keys are errors."""
-
-    def __init__(self, data, path: str, source: str):
-        if not isinstance(data, dict):
-            raise SceneError(f"{source}: {path or 'top level'}: must be a table, got {type(data).__name__}")
-        self.data = data
-        self.path = path
-        self.source = source
-        self.used: set = set()
-
-    def _key(self, key):
-        return f"{self.path}.{key}" if self.path else key
-
-    def fail(self, key, why):
-        raise SceneError(f"{self.source}: {self._key(key)}: {why}")
-
-    def get(self, key, default=None, kind=None, check=None, why=None):
-        self.used.add(key)
-        if key not in self.data:
-            if default is _REQUIRED:
-                self.fail(key, "missing (required)")
-            return default
-        value = self.data[key]
-        if kind is float:
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                self.fail(key, f"must be a number, got {value!r}")
-            # TOML has inf and nan literals: a length of inf renders and then overflows the methods.
-            if not _finite_number(value):
-                self.fail(key, f"must be finite (and within +-{_MAX_MAGNITUDE:g}), got {value!r}")
-            value = float(value)
-        elif kind is int:
-            if isinstance(value, bool) or not isinstance(value, int):
-                self.fail(key, f"must be an integer, got {value!r}")
-        elif kind is str:
-            if not isinstance(value, str):
-                self.fail(key, f"must be a string, got {value!r}")
-        elif kind is bool:
-            if not isinstance(value, bool):
-                self.fail(key, f"must be true or false, got {value!r}")
-        elif isinstance(kind, tuple) and kind[0] == "vec":
-            n = kind[1]
-            if (
-                not isinstance(value, list)
-                or (n is not None and len(value) != n)
-                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
-            ):
-                self.fail(key, f"must be a list of {n if n is not None else 'some'} numbers, got {value!r}")
-            if not all(_finite_number(v) for v in value):
-                self.fail(key, f"must be finite (and within +-{_MAX_MAGNITUDE:g}), got {value!r}")
-            value = [float(v) for v in value]
-        if check is not None and not check(value):
-            self.fail(key, f"{why}, got {value!r}")
-        return value
-
-    def table(self, key, required=False):
-        self.used.add(key)
-        if key not in self.data:
-            if required:
-                self.fail(key, "missing table (required)")
-            return _Table({}, self._key(key), self.source)
-        return _Table(self.data[key], self._key(key), self.source)
-
-    def tables(self, key):
-        self.used.add(key)
-        items = self.data.get(key, [])
-        if not isinstance(items, list):
-            self.fail(key, "must be an array of tables ([[...]])")
-        return [_Table(item, f"{self._key(key)}[{i}]", self.source) for i, item in enumerate(items)]
-
-    def done(self):
-        unknown = sorted(set(self.data) - self.used)
-        if unknown:
-            self.fail(unknown[0], "unknown key")
-
-
-#: Largest magnitude of a scene number (mm, px, ...): far beyond any rig, and small enough that
-#: the squares and products of geometry (norms, projections) cannot overflow.
-_MAX_MAGNITUDE = 1e12
-
-
-def _finite_number(value) -> bool:
-    """Whether the number ``value`` (int or float) is finite and within :data:`_MAX_MAGNITUDE`."""
-    return abs(value) <= _MAX_MAGNITUDE  # False for NaN and inf (and no float conversion of big ints)
-
-
-_REQUIRED = object()
-_POS = (lambda v: v > 0, "must be > 0")
-_NONNEG = (lambda v: v >= 0, "must be >= 0")
 # A camera at ~0 mm from its target has no line of sight (look_at would divide by ~0).
 _AWAY = (lambda v: v >= 1.0, "must be > 0 (at least 1 mm from the target)")
 
@@ -281,60 +185,6 @@ class Scene:
 
 
 # ----------------------------------------------------------------------------- parsing
-def _parse_tube(t: _Table) -> Tube:
-    kw = dict(
-        name=t.get("name", _REQUIRED, str),
-        outer_diameter_mm=t.get("outer_diameter_mm", _REQUIRED, float, *_POS),
-        inner_diameter_mm=t.get("inner_diameter_mm", _REQUIRED, float, *_NONNEG),
-        length_mm=t.get("length_mm", _REQUIRED, float, *_POS),
-        curved_length_mm=t.get("curved_length_mm", _REQUIRED, float, *_NONNEG),
-        precurvature_per_mm=t.get("precurvature_per_mm", _REQUIRED, float, *_NONNEG),
-        youngs_modulus_gpa=t.get("youngs_modulus_gpa", 60.0, float, *_POS),
-        poisson_ratio=t.get("poisson_ratio", 0.33, float, lambda v: -1 < v < 0.5, "must be in (-1, 0.5)"),
-    )
-    if kw["inner_diameter_mm"] >= kw["outer_diameter_mm"]:
-        t.fail("inner_diameter_mm", f"must be smaller than outer_diameter_mm={kw['outer_diameter_mm']}, got {kw['inner_diameter_mm']}")
-    if kw["curved_length_mm"] > kw["length_mm"]:
-        t.fail("curved_length_mm", f"must be <= length_mm={kw['length_mm']}, got {kw['curved_length_mm']}")
-    t.done()
-    return Tube(**kw)
-
-
-def _base_transform(position, insertion_axis, bend_axis) -> np.ndarray:
-    z = np.asarray(insertion_axis, float)
-    z /= np.linalg.norm(z)
-    x = np.asarray(bend_axis, float)
-    x = x - np.dot(x, z) * z
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
-    T[:3, 3] = position
-    return T
-
-
-def _parse_robot(r: _Table, source: str) -> tuple:
-    model = r.get("model", "bending", str, lambda v: v in ("bending", "compliant"), 'must be "bending" or "compliant"')
-    position = r.get("base_position_mm", [0.0, 0.0, 0.0], ("vec", 3))
-    ins = r.get("insertion_axis", [1.0, 0.0, 0.0], ("vec", 3), lambda v: np.linalg.norm(v) > 0, "must be non-zero")
-    bend = r.get("bend_axis", [0.0, 1.0, 0.0], ("vec", 3), lambda v: np.linalg.norm(v) > 0, "must be non-zero")
-    if np.linalg.norm(np.cross(ins, bend)) < 1e-6:
-        r.fail("bend_axis", "must not be parallel to insertion_axis")
-    tube_tables = r.tables("tubes")
-    if not tube_tables:
-        r.fail("tubes", "at least one [[robot.tubes]] is required")
-    tubes = [_parse_tube(t) for t in tube_tables]
-    for i in range(1, len(tubes)):
-        if tubes[i].outer_diameter_mm > tubes[i - 1].inner_diameter_mm:
-            tube_tables[i].fail(
-                "outer_diameter_mm",
-                f"tube {tubes[i].name!r} ({tubes[i].outer_diameter_mm} mm) is wider than the bore of "
-                f"tube {tubes[i - 1].name!r} ({tubes[i - 1].inner_diameter_mm} mm) it sits in",
-            )
-    r.done()
-    return Robot(tubes=tuple(tubes), T_world_base=_base_transform(position, ins, bend)), model, np.asarray(position), np.asarray(ins)
-
-
 #: Nominal line of sight (target -> camera, unit) and image-down direction of each camera (world).
 _NOMINAL_MOUNTS = {"side": ((0.0, -1.0, 0.0), (0.0, 0.0, -1.0)), "top": ((0.0, 0.0, 1.0), (0.0, -1.0, 0.0))}
 
@@ -527,7 +377,7 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
         image.fail("color", 'must be "mono" when image.kind is "masks" (masks are single-channel)')
     image.done()
     check_memory(render_bytes(width, height), f"{source}: image", f"rendering two {width}x{height} px views", SceneError)
-    robot, model, base, axis = _parse_robot(top.table("robot", required=True), source)
+    robot, model, base, axis = parse_robot_table(top.table("robot", required=True), source)
     rig = _parse_rig(top.table("rig"), width, height, base, axis)
     lighting = top.table("lighting")
     ambient = lighting.get("ambient", 0.35, float, *_NONNEG)
@@ -557,21 +407,6 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
         mask_polarity=polarity,
         classes=classes,
     )
-
-
-def read_toml(path, what: str, error=SceneError) -> dict:
-    """Parse a TOML file; ``error`` (one line) names the file and says whether it is missing, unreadable or not TOML."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise error(f"{path}: {what} not found") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise error(f"{path}: cannot read {what} ({exc.__class__.__name__})") from None
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise error(f"{path}: not valid TOML ({exc})") from None
 
 
 #: The lens checks of a scene camera and the key each one's problem is blamed on (the focal

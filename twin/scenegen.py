@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from recon.params import dumps_toml
+
 from .backdrop import auto_texture_px
 from .groundtruth import extend_to_mesh_start
 from .kinematics import solve
@@ -218,7 +220,6 @@ def view_problem(scene: Scene, base: str, backbones: list | None = None) -> str 
     thinnest exposed tube is at least 3 px wide.
     """
     backbones = backbones or _robot_points(scene)
-    thinnest = min(t.outer_diameter_mm for t in scene.robot.tubes)
     for name, cam in scene.rig.cameras.items():
         span = 0.0
         for bb in backbones:
@@ -493,14 +494,12 @@ def write_suite(scenes: list, directory) -> list:
     import json
     from pathlib import Path
 
-    import tomli_w
-
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
     paths, index = [], []
     for s in scenes:
         path = out / f"{s.name}.toml"
-        text = tomli_w.dumps(s.data)
+        text = dumps_toml(s.data)
         if not path.exists() or path.read_text() != text:
             tmp = path.with_name(f".{path.name}.tmp")
             tmp.write_text(text)

@@ -75,7 +75,7 @@ def measure(scene_path: str | None, frames: int) -> dict:
         for name, cam in f.cameras.items():
             ratios.append(float((f.labels[name] > 0).sum() / projected_tube_area_px(cam, bb)))
     return {
-        "platform": os.environ.get("PYOPENGL_PLATFORM"),
+        "platform": tw.renderer.platform,
         "supersample": tw.renderer.supersample,
         "width": scene.rig[scene.rig.names[0]].width,
         "height": scene.rig[scene.rig.names[0]].height,

@@ -14,7 +14,8 @@ import numpy as np
 from rig.progress import Progress
 from rig.session import SessionWriter
 from twin.modelfit import JointOffsets, load_robot_file
-from twin.record import render_session, robot_to_dict
+from twin.record import render_session
+from twin.robotfile import robot_to_dict
 from twin.scene import load_scene
 
 __all__ = ["render_scene_to", "render_believed_session"]

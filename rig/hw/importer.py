@@ -32,9 +32,9 @@ import numpy as np
 from recon.calibration import IMAGE_SUFFIXES
 from rig.hw.camera import CameraError, to_mono
 from rig.session import SessionWriter, _atomic_write_bytes
-from twin.record import robot_to_dict
 from twin.robot import Joints
-from twin.scene import SceneError, _parse_robot, _Table, read_toml
+from twin.robotfile import robot_from_toml, robot_to_dict
+from twin.schema import SceneError, read_toml
 
 __all__ = ["ImportInputError", "Recording", "open_recording", "natural_key", "name_times", "JointTable",
            "load_joints_csv", "robot_meta", "ImportPlan", "plan_import", "write_import", "TIME_UNITS",
@@ -440,7 +440,7 @@ def robot_meta(robot_file=None, diameters: str | None = None) -> dict | None:
         return None
     data = read_toml(robot_file, "robot file", ImportInputError)
     try:
-        robot, model, _, _ = _parse_robot(_Table(data, "", str(robot_file)).table("robot", required=True), str(robot_file))
+        robot, model = robot_from_toml(data, str(robot_file))
     except SceneError as exc:
         raise ImportInputError(str(exc)) from None
     return robot_to_dict(robot, model)

@@ -27,7 +27,7 @@ from rig.hw.actuator import JOINTS, Actuator, JointValues, SoftLimits
 from rig.hw.arduino import ArduinoActuator
 from rig.hw.camera import CameraPair, OpenCVCamera, ReplayCamera, ReplayWorld, TwinCameraPair, TwinWorld
 from rig.hw.virtual import ReplayActuator, TwinActuator
-from twin.record import robot_to_dict
+from twin.robotfile import robot_to_dict
 from twin.robot import Joints
 from twin.scene import _REQUIRED, SceneError, _Table, load_scene, read_toml
 
