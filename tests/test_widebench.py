@@ -6,7 +6,7 @@ import pytest
 
 from recon.camera import Camera, look_at
 from recon.rigcal import RigCalibration
-from rig import widebench as W
+from rig.bench import widebench as W
 
 
 def _rig(distance_mm=300.0, f_px=2000.0):
