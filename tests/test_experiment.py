@@ -271,8 +271,8 @@ def test_interrupt_stops_actuator_and_keeps_frames(twin_session, tmp_path):
 
     with pytest.raises(KeyboardInterrupt):
         with spec.open() as rig:
-            orig = rig.hw.actuator.stop
-            rig.hw.actuator.stop = lambda: (stopped.append(True), orig())[1]
+            orig = rig.actuator.stop
+            rig.actuator.stop = lambda: (stopped.append(True), orig())[1]
             ExperimentRunner(rig, seq, tmp_path / "out", log=lambda s: None, on_frame=interrupt).run()
     assert stopped, "leaving the rig block must stop the actuator"
     s = Session(tmp_path / "out")

@@ -15,7 +15,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from rig.bench import widebench
+from rig.bench import compare, widebench
 from rig.cli.commands import bench
 from rig.session import Session
 from tiny_session import tiny_backbone, tiny_rig, write_tiny_session
@@ -94,7 +94,7 @@ def test_thinnest_tube_px_skips_a_bad_first_truth(template, tmp_path):
 
 def test_bench_keeps_every_frame_and_notes_the_bad_truths(spoiled, monkeypatch, capsys):
     d, bad = spoiled
-    data = bench.load_session(d)
+    data = compare.load_session(d)
     assert len(data["frames"]) == 4 and data["truths"][0] is not None and data["truths"][1:] == [None] * 3
     assert data["truth_notes"][0] is None
     for f in (1, 2, 3):
@@ -112,7 +112,7 @@ def test_bench_keeps_every_frame_and_notes_the_bad_truths(spoiled, monkeypatch, 
             return SimpleNamespace(points_world_mm=tiny_backbone(self.k - 1))
 
     monkeypatch.setattr(bench, "make_method", lambda *a, **k: _Perfect())
-    out = bench.run_method("fast", data, repeats=1, memory=False)
+    out = compare.run_method("fast", data, repeats=1, memory=False)
     assert out["frames"] == 4 and out["failed_frames"] == 0 and out["scored_frames"] == 1
     assert out["max_error_mm"] == pytest.approx(0.0, abs=1e-6)
     assert len(out["score_notes"]) == 3

@@ -74,6 +74,3 @@ def main(argv=None) -> int:
         print(f"ctr-bench {args.command}: error: {msg}", file=sys.stderr)
         return 2
 
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

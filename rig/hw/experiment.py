@@ -408,7 +408,7 @@ class ExperimentRunner:
 
     # -- steps -------------------------------------------------------------------
     def _do(self, s: Step, label: str) -> None:
-        act = self.rig.hw.actuator
+        act = self.rig.actuator
         where = f"{s.key}" + (f" ({label.rstrip('; ')})" if label else "")
         if s.kind == "home":
             self.log(f"home  [{where}]")
@@ -437,7 +437,7 @@ class ExperimentRunner:
             self._background(s, where)
 
     def _target(self, to: dict | None, by: dict | None) -> JointValues:
-        act = self.rig.hw.actuator
+        act = self.rig.actuator
         base = act.target or act.position()
         if to is not None:
             return JointValues.coerce(to, base)
@@ -454,7 +454,7 @@ class ExperimentRunner:
         self.ask(f">>> {message} -- press Enter when done (Ctrl-C aborts) ")
 
     def _background(self, s: Step, where: str) -> None:
-        act, cams = self.rig.hw.actuator, self.rig.cameras
+        act, cams = self.rig.actuator, self.rig.cameras
         if s.retract:
             act.move_to(self._target(s.retract, None))
             act.wait_settled(s.timeout_s or self.seq.settle_timeout_s)
@@ -504,7 +504,7 @@ class ExperimentRunner:
                                       f"calibration says {c.width}x{c.height}")
 
     def _grab(self, s: Step) -> None:
-        act, cams = self.rig.hw.actuator, self.rig.cameras
+        act, cams = self.rig.actuator, self.rig.cameras
         t_start = time.monotonic()
         if s.settle and act.target is not None:
             act.wait_settled(s.timeout_s or self.seq.settle_timeout_s)

@@ -14,7 +14,7 @@ Typical use::
 
     spec = load_rig_file("scenes/rig-twin.toml")
     with spec.open() as rig:            # a Rig: cameras, actuator, calibration
-        rig.hw.actuator.home()
+        rig.actuator.home()
         pair = rig.cameras.grab()
 """
 from __future__ import annotations

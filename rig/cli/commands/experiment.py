@@ -105,7 +105,7 @@ def _run(args) -> int:
     status = 0
     try:
         with spec.open(serial=args.serial) as rig:
-            print(f"rig {spec.name!r}: cameras {rig.cameras.describe()}, actuator {rig.hw.actuator!r}; "
+            print(f"rig {spec.name!r}: cameras {rig.cameras.describe()}, actuator {rig.actuator!r}; "
                   f"recording into {out}", flush=True)
             runner = ExperimentRunner(rig, seq, out, method=args.reconstruct, params=params, log=log,
                                       assume_yes=args.yes, on_frame=on_frame)
