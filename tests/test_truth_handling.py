@@ -111,7 +111,7 @@ def test_bench_keeps_every_frame_and_notes_the_bad_truths(spoiled, monkeypatch, 
             self.k += 1
             return SimpleNamespace(points_world_mm=tiny_backbone(self.k - 1))
 
-    monkeypatch.setattr(bench, "make_method", lambda *a, **k: _Perfect())
+    monkeypatch.setattr(compare, "make_method", lambda *a, **k: _Perfect())
     out = compare.run_method("fast", data, repeats=1, memory=False)
     assert out["frames"] == 4 and out["failed_frames"] == 0 and out["scored_frames"] == 1
     assert out["max_error_mm"] == pytest.approx(0.0, abs=1e-6)
