@@ -31,19 +31,19 @@ def _board_poses(n: int, seed: int) -> list:
     rng = np.random.default_rng(seed)
     poses = []
     for _ in range(n):
-        T = np.eye(4)
-        T[:3, :3] = rotation_matrix(rng.normal(size=3), np.radians(rng.uniform(5, 35)))
+        T_cam_board = np.eye(4)
+        T_cam_board[:3, :3] = rotation_matrix(rng.normal(size=3), np.radians(rng.uniform(5, 35)))
         z = rng.uniform(200.0, 320.0)
-        T[:3, 3] = [rng.uniform(-0.3, 0.3) * z - 32.0, rng.uniform(-0.22, 0.22) * z - 20.0, z]
-        poses.append(T)
+        T_cam_board[:3, 3] = [rng.uniform(-0.3, 0.3) * z - 32.0, rng.uniform(-0.22, 0.22) * z - 20.0, z]
+        poses.append(T_cam_board)
     return poses
 
 
 def _detections(cam: Camera, poses: list, prefix: str) -> list:
     obj = BOARD.object_points()
     out = []
-    for i, T in enumerate(poses):
-        uv, _ = cam.with_pose(T).project(obj)
+    for i, T_cam_board in enumerate(poses):
+        uv, _ = cam.with_pose(T_cam_board).project(obj)
         out.append(Detection(f"{prefix}/{i:03d}.png", cam.image_size, uv, oriented=True))
     return out
 
@@ -60,8 +60,8 @@ def _held_out_error_px(cal, truth: Camera, seed: int) -> float:
     the calibrated camera: how well the model describes the lens, whatever the principal point and tilt trade."""
     obj = BOARD.object_points()
     worst = 0.0
-    for T in _board_poses(6, seed):
-        uv, _ = truth.with_pose(T).project(obj)
+    for T_cam_board in _board_poses(6, seed):
+        uv, _ = truth.with_pose(T_cam_board).project(obj)
         ok, rvec, tvec = cv2.solvePnP(obj, uv, cal.K, cal.dist, flags=cv2.SOLVEPNP_ITERATIVE)
         back, _ = cv2.projectPoints(obj, rvec, tvec, cal.K, cal.dist)
         worst = max(worst, float(np.abs(back[:, 0, :] - uv).max()))
@@ -99,9 +99,9 @@ def test_joint_refinement_with_the_tilted_model():
     poses = _board_poses(10, seed=3)
     obj = BOARD.object_points()
     obs = []
-    for i, T in enumerate(poses):
-        views = [("top", top.with_pose(T).project(obj)[0]), ("side", side.with_pose(T_side_top @ T).project(obj)[0])]
-        obs.append({"frame": f"stereo/{i}", "ref": "top", "T_ref_board": T, "views": views})
+    for i, T_top_board in enumerate(poses):
+        views = [("top", top.with_pose(T_top_board).project(obj)[0]), ("side", side.with_pose(T_side_top @ T_top_board).project(obj)[0])]
+        obs.append({"frame": f"stereo/{i}", "ref": "top", "T_ref_board": T_top_board, "views": views})
     K0 = K.copy()
     K0[0, 2] += 3.0
     start = {"top": (K0, np.zeros(14)), "side": (K0, np.zeros(8))}
@@ -116,11 +116,31 @@ def test_joint_refinement_with_the_tilted_model():
     assert np.abs(sol["T_side_top"][:3, 3] - T_side_top[:3, 3]).max() < 0.01
 
 
+def test_joint_refinement_names_its_bad_input():
+    T_top_board = _board_poses(1, seed=1)[0]
+    good = [{"frame": "stereo/0", "ref": "top", "T_ref_board": T_top_board,
+             "views": [("top", np.zeros((BOARD.n_corners, 2))), ("side", np.zeros((BOARD.n_corners, 2)))]}]
+    short = [{**good[0], "views": [("top", np.zeros((5, 2)))]}]
+    start = {"top": (K, np.zeros(5)), "side": (K, np.zeros(5))}
+    cases = [
+        (({"top": start["top"]}, good, np.eye(4)), {}, "cams has no 'side' camera"),
+        ((start, short, np.eye(4)), {}, r"observation 'stereo/0': a view must be .*\(54, 2\)"),
+        ((start, good, np.eye(3)), {}, "T_side_top must be 4x4"),
+        ((start, [], np.eye(4)), {}, "no observations"),
+        ((start, good, np.eye(4)), {"models": {"top": "k1 k9"}}, r"models\['top'\]: unknown distortion terms k9"),
+    ]
+    for (cams, obs, T_side_top), kw, message in cases:
+        with pytest.raises(ValueError, match=message) as err:
+            refine_jointly(cams, obs, T_side_top, BOARD, **kw)
+        assert "\n" not in str(err.value)
+
+
 def _nudge() -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = rotation_matrix([1, 0, 0], np.radians(0.3))
-    T[:3, 3] = [0.5, -0.3, 0.2]
-    return T
+    """The error put on the starting ``T_side_top``: ``T_top_top0`` (4x4, mm), 0.3 deg about x and 0.6 mm."""
+    T_top_top0 = np.eye(4)
+    T_top_top0[:3, :3] = rotation_matrix([1, 0, 0], np.radians(0.3))
+    T_top_top0[:3, 3] = [0.5, -0.3, 0.2]
+    return T_top_top0
 
 
 @pytest.mark.parametrize("bad, why", [("k1 k2 p1", "together"), ("k1 k4", "not in the 5-coefficient model"), ("k1 s1", "not in")])
@@ -161,10 +181,10 @@ def _write_kalibr(path, top, side, T_side_top, swap=False):
                 "distortion_model": "radtan", "distortion_coeffs": [float(v) for v in c.dist[:4]],
                 "resolution": [c.width, c.height], "rostopic": f"/{c.name}/image_raw", "cam_overlaps": [0, 1]}
 
-    T_m = T_side_top.copy() if not swap else invert_transform(T_side_top)
-    T_m[:3, 3] /= 1000.0
+    T_cam1_cam0_m = T_side_top.copy() if not swap else invert_transform(T_side_top)
+    T_cam1_cam0_m[:3, 3] /= 1000.0
     first, second = (top, side) if not swap else (side, top)
-    doc = {"cam0": cam(first), "cam1": {**cam(second), "T_cn_cnm1": T_m.tolist()}}
+    doc = {"cam0": cam(first), "cam1": {**cam(second), "T_cn_cnm1": T_cam1_cam0_m.tolist()}}
     path.write_text(yaml.safe_dump(doc, sort_keys=False))
 
 
@@ -182,11 +202,11 @@ def test_stereo_calib_and_kalibr_import_to_the_same_rig(rig_parts, tmp_path, cap
     assert main(["calibrate", "--import-kalibr", str(tmp_path / "camchain.yaml"), "--kalibr-cams", "cam1", "cam0",
                  "--world-from", str(tmp_path / "world.yaml"), "--out", str(b)]) == 0
     ra, rb = load_rig_calibration(a), load_rig_calibration(b)
-    for name, truth, T in (("top", top, T_top_world), ("side", side, T_side_top @ T_top_world)):
+    for name, truth, T_cam_world in (("top", top, T_top_world), ("side", side, T_side_top @ T_top_world)):
         for r in (ra, rb):
             np.testing.assert_allclose(r[name].K, truth.K, atol=1e-9)
             np.testing.assert_allclose(r[name].dist[:5], truth.dist, atol=1e-12)
-            np.testing.assert_allclose(r[name].T_cam_world, T, atol=1e-9)
+            np.testing.assert_allclose(r[name].T_cam_world, T_cam_world, atol=1e-9)
     # the exports: a rectified ROS pair that PyYAML and the ROS reader take back
     for name in ("top", "side"):
         doc = yaml.safe_load((a.parent / f"rig_ros_{name}.yaml").read_text())

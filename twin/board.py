@@ -156,11 +156,12 @@ class CalibrationScene:
         return self.rig_scene.rig
 
     @property
-    def T_world_world_board(self) -> np.ndarray:
-        """Pose of the world board in the world (board frame -> world, mm)."""
-        T = np.eye(4)
-        T[:3, 3] = self.world_origin_mm
-        return T
+    def T_world_board(self) -> np.ndarray:
+        """``T_world_board`` (4x4, mm): the world board's frame -> the world frame (axes shared, origin at
+        ``world_origin_mm``)."""
+        T_world_board = np.eye(4)
+        T_world_board[:3, 3] = self.world_origin_mm
+        return T_world_board
 
 
 def _pair(t: _Table, key, default, lo=None, hi=None):
@@ -504,14 +505,14 @@ def sample_stereo_poses(
         roll = np.radians(rng.uniform(-sr.roll_deg, sr.roll_deg))
         R = rotation_matrix(axis, tilt) @ rotation_matrix(R0[:, 2], roll) @ R0
         centre = np.asarray(sr.center_mm) + rng.uniform(-1, 1, 3) * np.asarray(sr.center_spread_mm)
-        T = np.eye(4)
-        T[:3, :3] = R
-        T[:3, 3] = centre - R @ centre_b
-        if not all(_fits(c, T, outline, 10.0) and _oblique_deg(c, T, board) < sr.max_oblique_deg for c in cams):
+        T_world_board = np.eye(4)
+        T_world_board[:3, :3] = R
+        T_world_board[:3, 3] = centre - R @ centre_b
+        if not all(_fits(c, T_world_board, outline, 10.0) and _oblique_deg(c, T_world_board, board) < sr.max_oblique_deg for c in cams):
             continue
-        if clearance is not None and not clearance.clear(samples @ T[:3, :3].T + T[:3, 3]):
+        if clearance is not None and not clearance.clear(samples @ T_world_board[:3, :3].T + T_world_board[:3, 3]):
             continue
-        out.append(T)
+        out.append(T_world_board)
     return out
 
 
@@ -578,35 +579,35 @@ def render_calibration(cal: CalibrationScene, progress=None, renderer=None) -> C
     rng = np.random.default_rng(np.random.SeedSequence([cal.seed, 5]))
     jobs = []  # (key, camera name, T_world_board, stream, index)
     for cam_name in cal.views.cameras:
-        for i, T in enumerate(sample_view_poses(rig[cam_name], cal.board, cal.look, rng, cal.views, clearance)):
-            jobs.append((f"{cam_name}/{i:03d}.png", cam_name, T, f"calib-{cam_name}", i))
+        for i, T_world_board in enumerate(sample_view_poses(rig[cam_name], cal.board, cal.look, rng, cal.views, clearance)):
+            jobs.append((f"{cam_name}/{i:03d}.png", cam_name, T_world_board, f"calib-{cam_name}", i))
     stereo_poses = sample_stereo_poses({n: rig[n] for n in ("side", "top")}, cal.board, cal.look, rng, cal.stereo, clearance)
-    for i, T in enumerate(stereo_poses):
+    for i, T_world_board in enumerate(stereo_poses):
         for cam_name in ("side", "top"):
-            jobs.append((f"stereo/{cam_name}/{i:03d}.png", cam_name, T, "calib-stereo", i))
-    T_world = cal.T_world_world_board
-    if not _fits(rig["top"], T_world, plate_outline(cal.board, cal.look), 0.0):
+            jobs.append((f"stereo/{cam_name}/{i:03d}.png", cam_name, T_world_board, "calib-stereo", i))
+    T_world_board = cal.T_world_board
+    if not _fits(rig["top"], T_world_board, plate_outline(cal.board, cal.look), 0.0):
         raise SceneError(f"{cal.source}: world.origin_mm: the world board does not fit in the top image")
     if not clearance.clear(_plate_samples(cal.board, cal.look) + cal.world_origin_mm):
         raise SceneError(f"{cal.source}: world.origin_mm: the world board would cut through the set (floor, wall, actuation unit or posts)")
     world_keys = [f"world/top{'' if e == 0 else f'_{e + 1}'}.png" for e in range(cal.world_exposures)]
     for e, key in enumerate(world_keys):
-        jobs.append((key, "top", T_world, "calib-world", e))
+        jobs.append((key, "top", T_world_board, "calib-world", e))
 
     images = {}
     poses = {}
     view = None
     try:
-        for k, (key, cam_name, T, stream, i) in enumerate(jobs):
+        for k, (key, cam_name, T_world_board, stream, i) in enumerate(jobs):
             cam = rig[cam_name]
             # exposures of the world board share one render unless the camera jitters between them
             if cal.jitter or view is None or not (stream == "calib-world" and i > 0):
                 if cal.jitter:
                     cam = jitter_camera(cam, sc.noise, frame_rng(cal.seed, f"jitter-{stream}", i, cam_name))
-                r.set_props([(m, T) for m in board_mesh])
+                r.set_props([(m, T_world_board) for m in board_mesh])
                 view = r.render(cam, with_truth=False)
             images[key] = expose(view.radiance, sc.noise, float(k), frame_rng(cal.seed, f"expose-{stream}", i, cam_name), sc.color)
-            poses[key] = T
+            poses[key] = T_world_board
             if progress is not None:
                 progress("render", k + 1, len(jobs))
     finally:
@@ -669,5 +670,5 @@ def write_capture(capture: CalibrationCapture, out: Path) -> Path:
     }
     (out / "board.json").write_text(json.dumps(meta, indent=2) + "\n")
     save_rig_calibration(out / "truth" / "rig.json", capture.truth)
-    (out / "truth" / "poses.json").write_text(json.dumps({k: T.tolist() for k, T in capture.poses.items()}, indent=1) + "\n")
+    (out / "truth" / "poses.json").write_text(json.dumps({k: T_world_board.tolist() for k, T_world_board in capture.poses.items()}, indent=1) + "\n")
     return out
