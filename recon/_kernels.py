@@ -1,11 +1,19 @@
-"""Compiled (numba) versions of the fast method's per-pixel loops.
+"""Compiled (numba) per-pixel loops of the fast method: its one production path.
 
-Optional: :mod:`recon.subpixel` and :mod:`recon.fast` use these when numba
-imports and fall back to their NumPy code otherwise (same results to
-rounding; ``tests/test_fast_method.py`` checks both). Each kernel fuses what
-NumPy does in a dozen array passes into one loop, which matters because the
-work per frame is small (~1 % of the pixels) and NumPy's per-call overhead
-would dominate.
+:mod:`recon.subpixel` and :mod:`recon.fast` call these (numba is a
+dependency). Each kernel fuses what NumPy does in a dozen array passes into
+one loop, which matters because the work per frame is small (~1 % of the
+pixels) and NumPy's per-call overhead would dominate. The NumPy versions
+survive as test oracles (``tests/fast_oracles.py``; the tests compare each
+kernel with its oracle, to rounding).
+
+Pixel coordinates are those of the image frame (OpenCV: (0, 0) is the centre
+of the top-left pixel), in full-resolution px unless said otherwise;
+differences from the background are in gray levels. ``stack`` is
+:attr:`recon.subpixel.ViewModel.stack` ((H*W, k+1) float32, pixel-major
+mean and eigenbackgrounds) and ``coeff`` the frame's ``[1, c_1..c_k]``
+(:func:`recon.subpixel.frame_coefficients`): the background at pixel ``p``
+is ``stack[p] @ coeff``.
 """
 from __future__ import annotations
 
@@ -20,7 +28,8 @@ _untilt_nb = njit(cache=True, nogil=True, inline="always")(distortion.untilt_xy)
 _undistort_step_nb = njit(cache=True, nogil=True, inline="always")(distortion.undistort_step)
 
 __all__ = ["profile_edges_nb", "profiles_at_seeds_nb", "profile_values_nb", "coarse_foreground_nb", "bfs_path_nb", "rays_nb",
-           "ridge_hits_nb", "near_any_nb"]
+           "ridge_hits_nb", "near_any_nb", "spline_fit_nb", "spline_eval_nb", "spline_robust_nb", "frame_coefficients_nb",
+           "frame_shift_nb", "tip_along_axis_nb", "project_nb"]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -88,15 +97,44 @@ def _edges_1d(d, threshold, out):
 
 @njit(cache=True, nogil=True)
 def profile_edges_nb(frame, stack, coeff, cu, cv, axis, half, threshold, nav, threshold1, strong):
-    """Cut the profiles and find their sub-pixel edges (see :func:`recon.subpixel.profile_edges`).
+    """Cut the profiles and find their sub-pixel edges (see :func:`recon.subpixel.edges_from_profiles`).
 
     Profile ``i`` is the mean of ``2 nav[i] + 1`` parallel lines, offset by
     ``-nav[i]..nav[i]`` px along the tube (rows for a row profile); lines outside
     the image are left out. The middle line is tried alone first (threshold
     ``threshold1``): where both its rims exceed ``strong`` the other lines
     are not cut, nor where none of its samples exceeds ``threshold`` (no
-    tube there); ``strong`` = inf: always average. Returns ``e1, e2, ok,
-    lines`` (sample units from the window's first sample; lines averaged).
+    tube there); ``strong`` = inf: always average.
+
+    Parameters
+    ----------
+    frame : (H, W) uint8 array
+        The frame (gray levels).
+    stack : (H*W, k+1) float32 array
+        Mean background and eigenbackgrounds, pixel-major.
+    coeff : (k+1,) float32 array
+        The frame's background coefficients.
+    cu, cv : (n,) int64 arrays
+        Window centres (px), kept inside the image by the caller.
+    axis : (n,) int8 array
+        1: the profile runs along u (a row), 0: along v (a column).
+    half : int
+        Half-length of the profiles (px).
+    threshold, threshold1 : float
+        Edge thresholds of an averaged profile and of the middle line (gray levels).
+    nav : (n,) int64 array
+        Lines averaged on each side of the middle one.
+    strong : float
+        Rim contrast (gray levels) above which the middle line's edges are taken.
+
+    Returns
+    -------
+    e1, e2 : (n,) float64 arrays
+        Edge positions (samples from the window's first sample).
+    ok : (n,) bool array
+        Both edges found.
+    lines : (n,) int64 array
+        Lines averaged.
     """
     H, W = frame.shape
     n = cu.shape[0]
@@ -149,11 +187,38 @@ def coarse_foreground_nb(frame, factor, lo, hi, rx0, ry0, rx1, ry1, mean_c, basi
     its threshold, or, within ``reach`` coarse pixels of such a pixel, when the
     mean absolute difference of its 2x2 pixels does
     (:func:`recon.subpixel.coarse_abs_difference`).
-    Returns the (ry1-ry0, rx1-rx0) uint8 mask and the largest excess over the
-    threshold.
+
+    Parameters
+    ----------
+    frame : (H, W) uint8 array
+        The frame (gray levels).
+    factor : int
+        Full-resolution px per coarse px.
+    lo, hi : int
+        Offsets (px) of the central 2x2 pixels within a ``factor`` block.
+    rx0, ry0, rx1, ry1 : int
+        The ROI (coarse px, image frame).
+    mean_c : (Hc, Wc) float32 array
+        Coarse mean background.
+    basis_c : (k, Hc, Wc) float32 array
+        Coarse eigenbackgrounds.
+    coarse_stack : (Hc, Wc, 4, k+1) float32 array
+        ``stack`` rows at each coarse pixel's central 2x2 pixels.
+    thr_c : (Hc, Wc) float32 array
+        Threshold per coarse pixel (gray levels).
+    coeff : (k+1,) float64 array
+        The frame's background coefficients.
+    reach : int
+        Coarse px around the first pass's foreground where the second is tried.
+
+    Returns
+    -------
+    mask : (ry1-ry0, rx1-rx0) uint8 array
+        1 = foreground.
+    best : float
+        The largest excess over the threshold (gray levels; <= 0: no foreground).
     """
     k = basis_c.shape[0]
-    k1 = coarse_stack.shape[3]
     hr = ry1 - ry0
     wr = rx1 - rx0
     mask = np.zeros((hr, wr), np.uint8)
@@ -186,7 +251,18 @@ def coarse_foreground_nb(frame, factor, lo, hi, rx0, ry0, rx1, ry1, mean_c, basi
             n_fg += mrow[x]
             best = max(best, e)
         fg_row[y] = n_fg > 0
-    # The second pass only where the first found something: a few rows of a mostly empty frame.
+    best = _abs_pass(frame, factor, lo, hi, rx0, ry0, mask, fg_row, coarse_stack, thr_c, coeff, reach, best)
+    return mask, best
+
+
+@njit(cache=True, nogil=True)
+def _abs_pass(frame, factor, lo, hi, rx0, ry0, mask, fg_row, coarse_stack, thr_c, coeff, reach, best):
+    """The second pass of :func:`coarse_foreground_nb`: within ``reach`` coarse px of the first pass's
+    foreground (rows ``fg_row``), the 2x2 pixels' mean absolute difference against the threshold. Adds its
+    foreground to ``mask`` (in place) and returns the largest excess so far, ``best`` included."""
+    hr, wr = mask.shape
+    k1 = coarse_stack.shape[3]
+    # Only where the first pass found something: a few rows of a mostly empty frame.
     near = np.zeros((hr, wr), np.uint8)
     near_row = np.zeros(hr, np.bool_)
     for y in range(hr):
@@ -221,14 +297,24 @@ def coarse_foreground_nb(frame, factor, lo, hi, rx0, ry0, rx1, ry1, mean_c, basi
                 mask[y, x] = 1
             if e > best:
                 best = e
-    return mask, best
+    return best
 
 
 @njit(cache=True, nogil=True)
 def bfs_path_nb(mask, sy, sx):
     """Breadth-first path in an 8-connected mask from (sy, sx) to the farthest pixel (ties: farthest in the plane).
 
-    Returns (n, 2) int64 (y, x), start first.
+    Parameters
+    ----------
+    mask : (h, w) uint8 array
+        The region (non-zero), in its own pixel grid (e.g. coarse px pooled 2x2).
+    sy, sx : int
+        The start (row, column) of that grid, inside the region.
+
+    Returns
+    -------
+    (n, 2) int64 array
+        ``(y, x)`` of the path's pixels, start first.
     """
     h, w = mask.shape
     pred = np.full(h * w, -2, np.int64)
@@ -286,28 +372,40 @@ def rays_nb(uv, K, d, m_inv, R, baseline, e1, e2, epipole, iterations):
     """Pixels -> unnormalized world ray directions, epipolar angles and conditioning, in one pass.
 
     Same as :func:`recon.distortion.undistort_normalized` with at most ``iterations`` fixed-point steps
-    (``d``: the 14 coefficients, ``m_inv``: the inverse tilt matrix) + ``R @ [x, y, 1]`` +
-    :meth:`EpipolarFrame.phi` + :func:`recon.epipolar.conditioning` (tangent by central differences).
+    + ``R @ [x, y, 1]`` + :meth:`recon.epipolar.EpipolarFrame.phi` + :func:`recon.epipolar.conditioning`
+    (tangent by central differences).
+
+    Parameters
+    ----------
+    uv : (n, 2) float64 array
+        Distorted pixels of one camera (image frame, px), in order along a curve.
+    K : (3, 3) array
+        The camera matrix.
+    d : (14,) array
+        The distortion coefficients (OpenCV order).
+    m_inv : (3, 3) array
+        The inverse tilt matrix.
+    R : (3, 3) array
+        Rotation camera -> world.
+    baseline, e1, e2 : (3,) arrays
+        The epipolar frame (world): the baseline and the two axes the plane
+        angle is measured in.
+    epipole : (3,) array
+        The other camera's centre in this camera's frame (mm).
+    iterations : int
+        Most fixed-point steps of the undistortion.
+
+    Returns
+    -------
+    dirs : (n, 3) float64 array
+        Unnormalized ray directions (world frame); NaN where the steps did not settle.
+    phi : (n,) float64 array
+        Epipolar-plane angles (rad); NaN where the steps did not settle.
+    cond : (n,) float64 array
+        |sin| of the angle between the curve and the epipolar lines.
     """
     n = uv.shape[0]
-    xy = np.empty((n, 2))
-    for i in range(n):
-        yp = (uv[i, 1] - K[1, 2]) / K[1, 1]
-        xp = (uv[i, 0] - K[0, 2] - K[0, 1] * yp) / K[0, 0]
-        x0, y0 = _untilt_nb(xp, yp, d, m_inv)
-        x = x0
-        y = y0
-        for _ in range(iterations):
-            xn, yn = _undistort_step_nb(x, y, x0, y0, d)
-            moved = abs(xn - x) + abs(yn - y)
-            x = xn
-            y = yn
-            if not moved > 1e-14:  # as undistort_normalized's eps (NaN stops too)
-                break
-        else:
-            x = y = np.nan  # not settled: the caller solves such points in Python (distortion's Newton steps)
-        xy[i, 0] = x
-        xy[i, 1] = y
+    xy = _normalized_nb(uv, K, d, m_inv, iterations)
     dirs = np.empty((n, 3))
     phi = np.empty(n)
     cond = np.empty(n)
@@ -338,13 +436,58 @@ def rays_nb(uv, K, d, m_inv, R, baseline, e1, e2, epipole, iterations):
     return dirs, phi, cond
 
 
+@njit(cache=True, nogil=True)
+def _normalized_nb(uv, K, d, m_inv, iterations):
+    """(n, 2) ideal normalized coordinates of the distorted pixels ``uv`` (n, 2): at most ``iterations``
+    fixed-point steps of :func:`recon.distortion.undistort_step`; NaN where they did not settle."""
+    n = uv.shape[0]
+    xy = np.empty((n, 2))
+    for i in range(n):
+        yp = (uv[i, 1] - K[1, 2]) / K[1, 1]
+        xp = (uv[i, 0] - K[0, 2] - K[0, 1] * yp) / K[0, 0]
+        x0, y0 = _untilt_nb(xp, yp, d, m_inv)
+        x = x0
+        y = y0
+        for _ in range(iterations):
+            xn, yn = _undistort_step_nb(x, y, x0, y0, d)
+            moved = abs(xn - x) + abs(yn - y)
+            x = xn
+            y = yn
+            if not moved > 1e-14:  # as undistort_normalized's eps (NaN stops too)
+                break
+        else:
+            x = y = np.nan  # not settled: the caller solves such points in Python (distortion's Newton steps)
+        xy[i, 0] = x
+        xy[i, 1] = y
+    return xy
+
+
 # ----------------------------------------------------------------------------- spline fits
 @njit(cache=True, nogil=True)
 def spline_fit_nb(idx, b, y, ok, w, P, smoothing):
     """Penalized least-squares coefficients of a uniform cubic B-spline from its banded design.
 
-    ``idx`` (n,) first basis function of each row, ``b`` (n, 4) its weights,
-    ``y`` (n, d), ``ok`` rows used, ``w`` row weights, ``P`` (m, m) penalty.
+    Parameters
+    ----------
+    idx : (n,) int64 array
+        First basis function of each row (:meth:`recon.subpixel.UniformSpline.basis`).
+    b : (n, 4) float64 array
+        Its four weights.
+    y : (n, d) float64 array
+        Values (their frame and units).
+    ok : (n,) bool array
+        Rows used.
+    w : (n,) float64 array
+        Row weights.
+    P : (m, m) float64 array
+        Penalty (m coefficients).
+    smoothing : float
+        Penalty weight relative to the mean diagonal of the normal matrix.
+
+    Returns
+    -------
+    (m, d) float64 array
+        The coefficients, in the units of ``y``.
     """
     m = P.shape[0]
     dim = y.shape[1]
@@ -370,6 +513,22 @@ def spline_fit_nb(idx, b, y, ok, w, P, smoothing):
 
 @njit(cache=True, nogil=True)
 def spline_eval_nb(idx, b, coef):
+    """A uniform cubic B-spline (or its derivative) at the rows of its banded design.
+
+    Parameters
+    ----------
+    idx : (n,) int64 array
+        First basis function of each row.
+    b : (n, 4) float64 array
+        Its four weights (of the basis functions or of their derivatives).
+    coef : (m, d) float64 array
+        Coefficients.
+
+    Returns
+    -------
+    (n, d) float64 array
+        The values, in the units of ``coef`` (per unit of the curve parameter for a derivative).
+    """
     n = idx.shape[0]
     dim = coef.shape[1]
     out = np.zeros((n, dim))
@@ -383,7 +542,30 @@ def spline_eval_nb(idx, b, coef):
 
 @njit(cache=True, nogil=True)
 def spline_robust_nb(idx, b, y, ok, P, smoothing, min_px, n_sigma):
-    """Fit; drop rows off the fit by more than max(n_sigma MAD, min_px); refit. Returns coef, new ok."""
+    """Fit; drop rows off the fit by more than max(n_sigma MAD, min_px); refit.
+
+    Parameters
+    ----------
+    idx, b : (n,) int64 and (n, 4) float64 arrays
+        The banded design (see :func:`spline_fit_nb`).
+    y : (n, 2) float64 array
+        Points (image frame, px).
+    ok : (n,) bool array
+        Rows used.
+    P : (m, m) float64 array
+        Penalty.
+    smoothing : float
+        Penalty weight (see :func:`spline_fit_nb`).
+    min_px, n_sigma : float
+        Rejection: residuals (px) of at least ``max(n_sigma * MAD, min_px)``.
+
+    Returns
+    -------
+    coef : (m, 2) float64 array
+        The coefficients after the refit (the first fit's when fewer than 4 rows remain).
+    new_ok : (n,) bool array
+        ``ok`` without the rejected rows.
+    """
     w = np.ones(idx.shape[0])
     coef = spline_fit_nb(idx, b, y, ok, w, P, smoothing)
     fit = spline_eval_nb(idx, b, coef)
@@ -418,7 +600,30 @@ def spline_robust_nb(idx, b, y, ok, P, smoothing, min_px, n_sigma):
 # ----------------------------------------------------------------------------- background fits
 @njit(cache=True, nogil=True)
 def frame_coefficients_nb(frame_flat, sample_index, sample_mean, Bt, G, thr):
-    """:func:`recon.subpixel.frame_coefficients` (``G`` includes the prior). Returns c (k,) and the sample max."""
+    """:func:`recon.subpixel.frame_coefficients`: least squares on the samples, then again without the foreground.
+
+    Parameters
+    ----------
+    frame_flat : (H*W,) uint8 array
+        The frame (gray levels), flattened.
+    sample_index : (M, 4) int64 array
+        Flat indices of the 2x2 pixels each coarse sample averages.
+    sample_mean : (M,) float32 array
+        Mean background at the samples.
+    Bt : (M, k) float64 array
+        Eigenbackgrounds at the samples.
+    G : (k, k) float64 array
+        ``Bt.T @ Bt`` plus the prior's diagonal.
+    thr : (M,) float32 array
+        Foreground threshold at the samples (gray levels); a residual over half of it leaves the second fit.
+
+    Returns
+    -------
+    c : (k,) float64 array
+        The coefficients ``c_1..c_k``.
+    fmax : float
+        The brightest sample (gray levels).
+    """
     M = sample_index.shape[0]
     k = Bt.shape[1]
     r = np.empty(M)
@@ -454,7 +659,30 @@ def frame_coefficients_nb(frame_flat, sample_index, sample_mean, Bt, G, thr):
 
 @njit(cache=True, nogil=True)
 def frame_shift_nb(frame_flat, mean_flat, W, H, idx, D, G, iterations):
-    """:func:`recon.subpixel.frame_shift` without the final plausibility check: returns (du, dv)."""
+    """:func:`recon.subpixel.frame_shift` without the final plausibility check.
+
+    Parameters
+    ----------
+    frame_flat : (H*W,) uint8 array
+        The frame (gray levels), flattened.
+    mean_flat : (H*W,) float32 array
+        The mean background, flattened.
+    W, H : int
+        Image size (px).
+    idx : (N,) int64 array
+        Flat indices of the static edges' pixels.
+    D : (N, 6) float64 array
+        Regressors there (mean, 1, x * mean, y * mean, -d mean/du, -d mean/dv).
+    G : (6, 6) float64 array
+        ``D.T @ D``.
+    iterations : int
+        Gauss-Newton steps (each stops the search once the shift exceeds 3 px or is not finite).
+
+    Returns
+    -------
+    du, dv : float
+        The shift (image frame, px).
+    """
     n = idx.shape[0]
     f = np.empty(n)
     for i in range(n):
@@ -486,85 +714,125 @@ def frame_shift_nb(frame_flat, mean_flat, W, H, idx, D, G, iterations):
         beta = np.linalg.solve(G2, rhs2)
     du = beta[4] / beta[0]
     dv = beta[5] / beta[0]
-    row = np.empty(6)
     for _ in range(iterations):
         if not (np.isfinite(du) and np.isfinite(dv)) or du * du + dv * dv > 9.0:
             break
-        GG = np.zeros((6, 6))
-        rr = np.zeros(6)
-        for i in range(n):
-            if not keep[i]:
-                continue
-            p = idx[i]
-            y = p // W
-            x = p - y * W
-            u = min(max(x - du, 0.0), W - 2.001)
-            v = min(max(y - dv, 0.0), H - 2.001)
-            u0 = int(np.floor(u))
-            v0 = int(np.floor(v))
-            fu = u - u0
-            fv = v - v0
-            q = v0 * W + u0
-            m00 = mean_flat[q]
-            m01 = mean_flat[q + 1]
-            m10 = mean_flat[q + W]
-            m11 = mean_flat[q + W + 1]
-            mv = (1 - fv) * ((1 - fu) * m00 + fu * m01) + fv * ((1 - fu) * m10 + fu * m11)
-            row[0] = mv
-            row[1] = 1.0
-            row[2] = (x / W - 0.5) * mv
-            row[3] = (y / H - 0.5) * mv
-            row[4] = -((1 - fv) * (m01 - m00) + fv * (m11 - m10))
-            row[5] = -((1 - fu) * (m10 - m00) + fu * (m11 - m01))
-            for a in range(6):
-                rr[a] += row[a] * f[i]
-                for b2 in range(6):
-                    GG[a, b2] += row[a] * row[b2]
+        GG, rr = _shift_normal_equations(f, keep, idx, mean_flat, W, H, du, dv)
         beta = np.linalg.solve(GG, rr)
         du += beta[4] / beta[0]
         dv += beta[5] / beta[0]
     return du, dv
 
 
+@njit(cache=True, nogil=True)
+def _shift_normal_equations(f, keep, idx, mean_flat, W, H, du, dv):
+    """Normal equations ``(GG (6, 6), rr (6,))`` of one Gauss-Newton step of :func:`frame_shift_nb`: the
+    regressors re-sampled (bilinear) at the pixels ``idx[keep]`` moved back by the shift ``(du, dv)`` px,
+    against the frame's values ``f`` there."""
+    n = idx.shape[0]
+    row = np.empty(6)
+    GG = np.zeros((6, 6))
+    rr = np.zeros(6)
+    for i in range(n):
+        if not keep[i]:
+            continue
+        p = idx[i]
+        y = p // W
+        x = p - y * W
+        u = min(max(x - du, 0.0), W - 2.001)
+        v = min(max(y - dv, 0.0), H - 2.001)
+        u0 = int(np.floor(u))
+        v0 = int(np.floor(v))
+        fu = u - u0
+        fv = v - v0
+        q = v0 * W + u0
+        m00 = mean_flat[q]
+        m01 = mean_flat[q + 1]
+        m10 = mean_flat[q + W]
+        m11 = mean_flat[q + W + 1]
+        mv = (1 - fv) * ((1 - fu) * m00 + fu * m01) + fv * ((1 - fu) * m10 + fu * m11)
+        row[0] = mv
+        row[1] = 1.0
+        row[2] = (x / W - 0.5) * mv
+        row[3] = (y / H - 0.5) * mv
+        row[4] = -((1 - fv) * (m01 - m00) + fv * (m11 - m10))
+        row[5] = -((1 - fu) * (m10 - m00) + fu * (m11 - m01))
+        for a in range(6):
+            rr[a] += row[a] * f[i]
+            for b2 in range(6):
+                GG[a, b2] += row[a] * row[b2]
+    return GG, rr
+
+
 # ----------------------------------------------------------------------------- tip
 @njit(cache=True, nogil=True)
-def tip_along_axis_nb(frame, stack, coeff, p_end, t_end, radius_px, threshold, back_px, ahead_px, step):
-    """:func:`recon.subpixel._tip_along_axis`: median silhouette end (px along the axis), NaN if none."""
+def _axis_line_nb(frame, stack, coeff, p_end, t_end, off, nx, ny, back_px, step, d):
+    """The background difference (bilinear, gray levels) into ``d`` along the line ``off`` px to the side
+    (normal ``(nx, ny)``) of the axis through ``p_end`` along ``t_end``, from ``back_px`` behind it every
+    ``step`` px; False when the line leaves the image (for :func:`tip_along_axis_nb`)."""
     H, W = frame.shape
+    T = d.shape[0]
+    k1 = coeff.shape[0]
+    good = True
+    for j in range(T):
+        t = -back_px + j * step
+        u = p_end[0] + t * t_end[0] + off * nx
+        v = p_end[1] + t * t_end[1] + off * ny
+        if u < 0 or v < 0 or u > W - 1 or v > H - 1:
+            good = False
+            break
+        u = min(u, W - 1.001)
+        v = min(v, H - 1.001)
+        u0 = int(np.floor(u))
+        v0 = int(np.floor(v))
+        fu = u - u0
+        fv = v - v0
+        acc = 0.0
+        for du in range(2):
+            for dv in range(2):
+                wgt = (fu if du else 1 - fu) * (fv if dv else 1 - fv)
+                p = (v0 + dv) * W + u0 + du
+                bg = 0.0
+                for c in range(k1):
+                    bg += stack[p, c] * coeff[c]
+                acc += wgt * (frame.flat[p] - bg)
+        d[j] = acc
+    return good
+
+
+@njit(cache=True, nogil=True)
+def tip_along_axis_nb(frame, stack, coeff, p_end, t_end, radius_px, threshold, back_px, ahead_px, step):
+    """``recon.subpixel._tip_along_axis``: the silhouette's end along the tube's axis.
+
+    Parameters
+    ----------
+    frame : (H, W) uint8 array
+        The frame (gray levels).
+    stack, coeff : arrays
+        The background model and the frame's coefficients (see the module).
+    p_end, t_end : (2,) float64 arrays
+        The last centre (image frame, px) and the unit tangent there.
+    radius_px : float
+        The tube's half-width (px); five lines parallel to the axis lie within it.
+    threshold : float
+        Edge threshold of one line (gray levels).
+    back_px, ahead_px, step : float
+        The lines run from ``back_px`` behind ``p_end`` to ``ahead_px`` beyond it, sampled every ``step`` (px).
+
+    Returns
+    -------
+    float
+        The median end over the lines (px along ``t_end`` from ``p_end``), NaN if no line has one.
+    """
     nx, ny = -t_end[1], t_end[0]
     offs = np.array([-0.45, -0.2, 0.0, 0.2, 0.45]) * radius_px
     T = int(np.floor((ahead_px + back_px) / step + 1e-9)) + 1
     n_in = int(round(2.0 / step))
-    k1 = coeff.shape[0]
     ends = np.empty(5)
     n_end = 0
     d = np.empty(T)
     for li in range(5):
-        good = True
-        for j in range(T):
-            t = -back_px + j * step
-            u = p_end[0] + t * t_end[0] + offs[li] * nx
-            v = p_end[1] + t * t_end[1] + offs[li] * ny
-            if u < 0 or v < 0 or u > W - 1 or v > H - 1:
-                good = False
-                break
-            u = min(u, W - 1.001)
-            v = min(v, H - 1.001)
-            u0 = int(np.floor(u))
-            v0 = int(np.floor(v))
-            fu = u - u0
-            fv = v - v0
-            acc = 0.0
-            for du in range(2):
-                for dv in range(2):
-                    wgt = (fu if du else 1 - fu) * (fv if dv else 1 - fv)
-                    p = (v0 + dv) * W + u0 + du
-                    bg = 0.0
-                    for c in range(k1):
-                        bg += stack[p, c] * coeff[c]
-                    acc += wgt * (frame.flat[p] - bg)
-            d[j] = acc
-        if not good:
+        if not _axis_line_nb(frame, stack, coeff, p_end, t_end, offs[li], nx, ny, back_px, step, d):
             continue
         last = -1
         cnt_above = 0
@@ -602,8 +870,28 @@ def tip_along_axis_nb(frame, stack, coeff, p_end, t_end, radius_px, threshold, b
 
 @njit(cache=True, nogil=True)
 def project_nb(P, K, d, m, T):
-    """World points (n, 3) -> distorted pixels (n, 2) and depths (n,), as :meth:`Camera.project`
-    (``d``: the 14 distortion coefficients, ``m``: the tilt matrix)."""
+    """World points -> distorted pixels and depths, as :meth:`recon.camera.Camera.project`.
+
+    Parameters
+    ----------
+    P : (n, 3) float64 array
+        Points (world frame, mm).
+    K : (3, 3) array
+        The camera matrix.
+    d : (14,) array
+        The distortion coefficients (OpenCV order).
+    m : (3, 3) array
+        The tilt matrix.
+    T : (4, 4) array
+        World -> camera transform (mm).
+
+    Returns
+    -------
+    uv : (n, 2) float64 array
+        Pixels (image frame, px).
+    z : (n,) float64 array
+        Depths along the optical axis (camera frame, mm).
+    """
     n = P.shape[0]
     uv = np.empty((n, 2))
     z = np.empty(n)
@@ -653,7 +941,29 @@ def _windows(seeds, tangents, half, nav_max, H, W):
 def profiles_at_seeds_nb(frame, stack, coeff, seeds, tangents, half, threshold, nav_max, threshold1, strong):
     """:func:`recon.subpixel.edges_from_profiles` in one call: windows, lines averaged, edges, centres.
 
-    Returns ``centers (n, 2), chord (n,), axis (n,) int8, ok (n,)``.
+    Parameters
+    ----------
+    frame, stack, coeff : arrays
+        The frame and the background model (see the module).
+    seeds, tangents : (n, 2) float64 arrays
+        Profile centres (image frame, px) and the tube's unit direction there.
+    half : int
+        Half-length of the profiles (px).
+    threshold, threshold1, strong : float
+        As for :func:`profile_edges_nb` (gray levels).
+    nav_max : int
+        Most lines averaged on each side (fewer where the tube is slanted to them).
+
+    Returns
+    -------
+    centers : (n, 2) float64 array
+        Midpoints of the edges (image frame, px).
+    chord : (n,) float64 array
+        Edge distance along the profile (px).
+    axis : (n,) int8 array
+        1: the profile runs along u, 0: along v.
+    ok : (n,) bool array
+        Edges found and the window centred on the rounded seed.
     """
     H, W = frame.shape
     n = seeds.shape[0]
@@ -676,10 +986,26 @@ def profiles_at_seeds_nb(frame, stack, coeff, seeds, tangents, half, threshold, 
 
 @njit(cache=True, nogil=True)
 def profile_values_nb(frame, stack, coeff, seeds, tangents, half, nav_max):
-    """Background differences on the profiles at ``seeds`` (n, 2 half + 1), each the mean of its lines.
+    """Background differences on the profiles at ``seeds``, each the mean of its lines.
 
     The windows and lines of :func:`profiles_at_seeds_nb` (seeds rounded and
-    kept inside the image); :func:`recon.subpixel._gather_profiles` compiled.
+    kept inside the image).
+
+    Parameters
+    ----------
+    frame, stack, coeff : arrays
+        The frame and the background model (see the module).
+    seeds, tangents : (n, 2) float64 arrays
+        Profile centres (image frame, px) and the tube's unit direction there.
+    half : int
+        Half-length of the profiles (px).
+    nav_max : int
+        Most lines averaged on each side.
+
+    Returns
+    -------
+    (n, 2 half + 1) float64 array
+        The differences (gray levels), sample ``half`` at the window's centre.
     """
     H, W = frame.shape
     n = seeds.shape[0]
@@ -699,8 +1025,29 @@ def profile_values_nb(frame, stack, coeff, seeds, tangents, half, nav_max):
 
 @njit(cache=True, nogil=True)
 def ridge_hits_nb(d, w, max_off, half, threshold):
-    """Per profile of ``|difference|`` values ``d`` (n, L): the tube's core as a ridge (see
-    :func:`recon.subpixel._energy_hits`). Returns ``found`` (n,) bool and ``off`` (n,) px from the seed."""
+    """Per profile of ``|difference|`` values: the tube's core as a ridge (see ``recon.subpixel._energy_hits``).
+
+    Parameters
+    ----------
+    d : (n, L) float64 array
+        Absolute differences from the background (gray levels), sample ``half`` at the seed.
+    w : int
+        Window width: the tube's width (px).
+    max_off : (n,) float64 array
+        Farthest the window's centre may lie from the seed (px).
+    half : float
+        Index of the seed's sample.
+    threshold : float
+        Edge threshold (gray levels); the window's mean must exceed the
+        profile's median by half of it, and be twice that median.
+
+    Returns
+    -------
+    found : (n,) bool array
+        Profiles whose best window is such a ridge.
+    off : (n,) float64 array
+        Centroid of the window's differences, from the seed (px along the profile).
+    """
     n, L = d.shape
     m = L - w + 1
     found = np.zeros(n, np.bool_)
@@ -731,7 +1078,21 @@ def ridge_hits_nb(d, w, max_off, half, threshold):
 
 @njit(cache=True, nogil=True)
 def near_any_nb(points, visited, radius):
-    """(n,) bool: which ``points`` (n, 2) lie within ``radius`` of one of ``visited`` (m, 2)."""
+    """Which points lie within ``radius`` of one of the visited points.
+
+    Parameters
+    ----------
+    points : (n, 2) float64 array
+        Points (image frame, px).
+    visited : (m, 2) float64 array
+        Points visited before (image frame, px).
+    radius : float
+        Distance (px); strictly less counts.
+
+    Returns
+    -------
+    (n,) bool array
+    """
     out = np.zeros(points.shape[0], np.bool_)
     r2 = radius * radius
     for i in range(points.shape[0]):

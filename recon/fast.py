@@ -20,8 +20,9 @@ Across frames (:mod:`recon.temporal`): each backbone is compared with the
 previous frame's; an implausible jump sets ``jump_flag`` and ``jump_reason``
 on the result.
 
-Everything is in float32/float64 numpy on one core; no per-pixel work is done
-outside ~1 % of the full-resolution pixels.
+Everything runs on one core, the per-pixel loops and the ray computations
+compiled (:mod:`recon._kernels`, numba); no per-pixel work is done outside
+~1 % of the full-resolution pixels.
 """
 from __future__ import annotations
 
@@ -32,8 +33,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from ._kernels import project_nb, rays_nb
 from .background import EigenBackground, EigenBackgroundParams, fit_eigenbackground, to_gray
-from .backbone import back_to_base_plane, back_to_border
+from .backbone import arc_length, back_to_base_plane, back_to_border
 from .carving import rig_center
 from .distortion import undistort_normalized
 from .epipolar import EpipolarFrame, align_dp, conditioning, monotonic, triangulate_rays
@@ -41,11 +43,7 @@ from .errors import FrameError
 from .methods import Method, register_method
 from .paper import camera_order
 from .rigcal import RigCalibration
-from . import subpixel
-from .subpixel import ViewCenterline, ViewModel, extract_view, fit_curve, prepare_view
-
-if subpixel.HAVE_NUMBA:
-    from ._kernels import project_nb, rays_nb, spline_fit_nb
+from .subpixel import ViewCenterline, ViewModel, ViewParams, extract_view, fit_curve, interp_rows, prepare_view, resample_arc
 from .temporal import JumpLimits, jump_check
 
 __all__ = ["FastParams", "FastModel", "FastReconstruction", "prepare_fast", "FastReconstructor"]
@@ -76,48 +74,14 @@ class FastParams:
         Coarse foreground threshold: at least this many noise sigmas and gray
         levels (and above the pixel's own background residual, see
         :func:`recon.subpixel.prepare_view`).
-    base_search_px : float
-        The robot's region must come within this distance (px) of the
-        projected base.
     roi_margin_px : float
         The robot is looked for within the previous frame's region plus this
         margin (px); the whole frame when it is lost or outgrows that.
-    sparse_step_px : float
-        Spacing of the first, wide profiles that re-centre the coarse path (px).
-    profile_step_px : float
-        Spacing of the measuring profiles across the tube along its path (px).
-    edge_threshold_sigma, edge_min_dn : float
-        A profile sample is tube when its difference exceeds this many sigmas
-        (of the profile's noise: the pixel noise over the square root of the
-        lines averaged) and gray levels.
-    profile_half_lines : int
-        Each profile averages ``2 profile_half_lines + 1`` parallel lines along
-        the tube (fewer where the tube runs slanted to them), so that a tube
-        little brighter or darker than the backdrop still has edges.
-    single_line_rim_factor : float
-        The middle line is tried alone first: where both its rims exceed this
-        many times the single-line threshold (``edge_threshold_sigma`` sigmas,
-        at least ``edge_min_dn``) its edges are used and the other lines are
-        not cut (the averaging is ~5x the work per profile); inf: always
-        average.
-    min_width_fraction, max_width_fraction : float
-        Profiles narrower than this fraction of the inner tube's width, or
-        wider than this fraction of the outer tube's, are rejected.
-    follow_gap_diameters : float
-        Following the tube past the coarse path bridges stretches without
-        edges (the tube in front of backdrop as bright as itself) up to this
-        many outer-tube diameters, if the tube is found again beyond them
-        (:func:`recon.subpixel._follow_tube`).
-    follow_energy : bool
-        While following, a profile without a pair of edges still finds the
-        tube where a window of its width differs from the background by half
-        the edge threshold on average (a shiny tube whose rims match the
-        backdrop, or one changing polarity along the way).
-    outlier_sigma, outlier_min_px : float
-        A centre farther than ``max(outlier_sigma * MAD, outlier_min_px)``
-        from the spline is rejected.
-    spline_knot_px : float
-        Knot spacing of the per-view centerline spline (px).
+    view : recon.subpixel.ViewParams
+        Each view's centerline extraction (``[view]`` table): base search,
+        profile spacing, edge thresholds and lines averaged, accepted widths,
+        following the tube past the coarse path, outlier rejection, the
+        per-view spline's knots and the jitter compensation.
     sample_step_px : float
         Sampling of the per-view curves for correspondence (px).
     knot_mm : float
@@ -129,9 +93,6 @@ class FastParams:
     max_base_gap_mm : float
         The backbone is continued back to the base plane only if its first
         point is at most this far from it (mm).
-    jitter_compensation : bool
-        Measure each frame's image shift against the background's static
-        edges (camera jitter) and undo it before triangulating.
     retry_min_dn : float
         A view whose end stops short of where the other view puts the tip is
         followed once more beyond its end with this lower edge threshold (gray
@@ -163,27 +124,13 @@ class FastParams:
     coarse_factor: int = 4
     coarse_threshold_sigma: float = 6.0
     coarse_threshold_min_dn: float = 6.0
-    base_search_px: float = 24.0
     roi_margin_px: float = 64.0
-    sparse_step_px: float = 6.0
-    profile_step_px: float = 2.0
-    edge_threshold_sigma: float = 5.0
-    edge_min_dn: float = 8.0
-    profile_half_lines: int = 2
-    single_line_rim_factor: float = 3.0
-    min_width_fraction: float = 0.2
-    max_width_fraction: float = 1.3
-    follow_gap_diameters: float = 3.0
-    follow_energy: bool = True
-    outlier_sigma: float = 4.0
-    outlier_min_px: float = 0.5
-    spline_knot_px: float = 40.0
+    view: ViewParams = field(default_factory=ViewParams)
     sample_step_px: float = 4.0
     knot_mm: float = 4.0
     output_step_mm: float = 0.5
     max_ray_gap_mm: float = 1.0
     max_base_gap_mm: float = 6.0
-    jitter_compensation: bool = True
     retry_min_dn: float = 3.0
     max_tip_mismatch_px: float = 8.0
     tip_triangulate_px: float = 3.0
@@ -194,14 +141,29 @@ class FastParams:
             raise ValueError(f"FastParams.coarse_factor must be >= 1, got {self.coarse_factor}")
         if not 0 < self.inner_tube_radius_mm < self.outer_tube_radius_mm:
             raise ValueError("FastParams: need 0 < inner_tube_radius_mm < outer_tube_radius_mm")
-        for name in ("profile_step_px", "spline_knot_px", "sample_step_px", "knot_mm", "output_step_mm"):
+        for name in ("sample_step_px", "knot_mm", "output_step_mm"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"FastParams.{name} must be > 0, got {getattr(self, name)}")
 
 
 @dataclass(frozen=True, eq=False)
 class FastModel:
-    """What the fast method needs besides the frames (built by :func:`prepare_fast`)."""
+    """What the fast method needs besides the frames (built by :func:`prepare_fast`).
+
+    Attributes
+    ----------
+    rig : RigCalibration
+    pair : tuple of str
+        The two cameras used, in :func:`recon.paper.camera_order`.
+    views : dict
+        Camera name -> :class:`recon.subpixel.ViewModel`.
+    epipolar : EpipolarFrame
+        The pair's epipolar planes (world frame).
+    epipoles : dict
+        Camera name -> the other camera's centre in this camera's frame (mm).
+    R_world_cam : dict
+        Camera name -> (3, 3) rotation camera -> world.
+    """
 
     rig: RigCalibration
     pair: tuple
@@ -312,6 +274,24 @@ def _offset_only(eig: EigenBackground) -> EigenBackground:
 def prepare_fast(rig: RigCalibration, background_frames: dict, params: FastParams = FastParams()) -> FastModel:
     """Fit the eigenbackgrounds and the per-view constants.
 
+    Parameters
+    ----------
+    rig : RigCalibration
+        The calibrated cameras (world frame, mm), the robot base and its
+        insertion axis; the first two cameras in :func:`recon.paper.camera_order`
+        are used.
+    background_frames : dict
+        Camera name -> (N, H, W) or (N, H, W, 3) frames without the robot
+        (gray levels; RGB is converted).
+    params : FastParams, optional
+        The method's parameters.
+
+    Returns
+    -------
+    FastModel
+        Per-view constants (:class:`recon.subpixel.ViewModel`) and the pair's
+        epipolar geometry (world frame, mm).
+
     Raises
     ------
     ValueError
@@ -353,19 +333,11 @@ def prepare_fast(rig: RigCalibration, background_frames: dict, params: FastParam
 
 
 # ----------------------------------------------------------------------------- 3D
-def _arc(points: np.ndarray) -> np.ndarray:
-    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-
-
-def _resample(points: np.ndarray, step: float) -> np.ndarray:
-    s = _arc(points)
-    n = max(2, int(np.floor(s[-1] / step)) + 1)
-    t = np.linspace(0.0, s[-1], n) if s[-1] > 0 else np.zeros(2)
-    return np.stack([np.interp(t, s, points[:, j]) for j in range(3)], axis=1)
-
-
 @dataclass(frozen=True, eq=False)
 class _ViewSamples:
+    """A view's curve sampled for correspondence: curve parameters ``s`` (px), pixels ``uv`` (jitter removed),
+    unnormalized world ray directions, epipolar-plane angles (rad) and conditioning (:func:`recon.epipolar.conditioning`)."""
+
     s: np.ndarray
     uv: np.ndarray
     dirs: np.ndarray
@@ -388,21 +360,36 @@ def _pixels_to_normalized(cam, uv: np.ndarray, iterations: int = _UNDISTORT_STEP
     return undistort_normalized(np.stack([x, y], axis=1), cam.dist, max_iterations=iterations)
 
 
-def _view_samples(model: FastModel, name: str, vc: ViewCenterline, step: float) -> _ViewSamples:
+def _rays(model: FastModel, name: str, uv: np.ndarray) -> tuple:
+    """Unnormalized world ray directions, epipolar-plane angles (rad) and conditioning of the pixels ``uv``
+    (m, 2) of a view (distortion undone): :func:`recon._kernels.rays_nb`, or :func:`_rays_in_python` where
+    its fixed-point steps did not settle."""
     cam = model.rig[name]
+    ef = model.epipolar
+    d, phi, cond = rays_nb(uv, cam.K, cam.dist14, cam.tilt[1], model.R_world_cam[name], ef.baseline, ef.e1, ef.e2,
+                           model.epipoles[name], _UNDISTORT_STEPS)
+    if np.isfinite(phi).all():  # NaN: a pixel the fixed-point steps did not solve (strong pincushion)
+        return d, phi, cond
+    return _rays_in_python(model, name, uv)
+
+
+def _rays_in_python(model: FastModel, name: str, uv: np.ndarray) -> tuple:
+    """:func:`_rays` by :func:`recon.distortion.undistort_normalized` (its Newton steps solve what the fixed-point
+    steps leave)."""
+    xy = _pixels_to_normalized(model.rig[name], uv)
+    R = model.R_world_cam[name]
+    d = xy @ R[:, :2].T + R[:, 2]
+    return d, model.epipolar.phi(d), conditioning(xy, model.epipoles[name])
+
+
+def _view_samples(model: FastModel, name: str, vc: ViewCenterline, step: float) -> _ViewSamples:
+    """A view's curve every ``step`` px (at least 4 samples) of its parameter, jitter removed, with its rays."""
     s0, s1 = vc.s_range
     n = max(4, int(np.ceil((s1 - s0) / step)) + 1)
     s = np.linspace(s0, s1, n)
     uv = vc.curve(s) - vc.shift_px
-    R = model.R_world_cam[name]
-    if subpixel.USE_NUMBA:
-        ef = model.epipolar
-        d, phi, cond = rays_nb(uv, cam.K, cam.dist14, cam.tilt[1], R, ef.baseline, ef.e1, ef.e2, model.epipoles[name], _UNDISTORT_STEPS)
-        if np.isfinite(phi).all():  # NaN: a pixel the fixed-point steps did not solve (strong pincushion)
-            return _ViewSamples(s=s, uv=uv, dirs=d, phi=phi, cond=cond)
-    xy = _pixels_to_normalized(cam, uv)
-    d = xy @ R[:, :2].T + R[:, 2]  # unnormalized ray directions (world)
-    return _ViewSamples(s=s, uv=uv, dirs=d, phi=model.epipolar.phi(d), cond=conditioning(xy, model.epipoles[name]))
+    d, phi, cond = _rays(model, name, uv)
+    return _ViewSamples(s=s, uv=uv, dirs=d, phi=phi, cond=cond)
 
 
 def _check_tube_widths(name: str, vm, min_width_px: float) -> None:
@@ -415,16 +402,7 @@ def _check_tube_widths(name: str, vm, min_width_px: float) -> None:
 
 def _phi_at(model: FastModel, name: str, uv: np.ndarray) -> np.ndarray:
     """Epipolar-plane angle (rad) of the rays through undistorted-by-calibration pixels ``uv`` (m, 2) of a view."""
-    cam = model.rig[name]
-    uv = np.ascontiguousarray(np.asarray(uv, float).reshape(-1, 2))
-    R = model.R_world_cam[name]
-    if subpixel.USE_NUMBA:
-        ef = model.epipolar
-        phi = rays_nb(uv, cam.K, cam.dist14, cam.tilt[1], R, ef.baseline, ef.e1, ef.e2, model.epipoles[name], _UNDISTORT_STEPS)[1]
-        if np.isfinite(phi).all():
-            return phi
-    xy = _pixels_to_normalized(cam, uv)
-    return model.epipolar.phi(xy @ R[:, :2].T + R[:, 2])
+    return _rays(model, name, np.ascontiguousarray(np.asarray(uv, float).reshape(-1, 2)))[1]
 
 
 def _tip_mismatch(model: FastModel, views: dict, sa: _ViewSamples, sb: _ViewSamples):
@@ -455,29 +433,12 @@ def _tip_mismatch(model: FastModel, views: dict, sa: _ViewSamples, sb: _ViewSamp
 
 
 def _project(cam, P: np.ndarray):
-    if subpixel.USE_NUMBA:
-        return project_nb(P, cam.K, cam.dist14, cam.tilt[0], cam.T_cam_world)
-    return cam.project(P)
-
-
-def _fit_weighted(q: np.ndarray, X: np.ndarray, spacing: float, w: np.ndarray):
-    """:func:`recon.subpixel.fit_curve` with row weights (banded and compiled when numba is there)."""
-    if not subpixel.USE_NUMBA:
-        return fit_curve(q, X, spacing, w=w)
-    s0, s1 = float(q[0]), float(q[-1])
-    n_int = max(1, int(np.ceil((s1 - s0) / spacing - 1e-9)))
-    h = max((s1 - s0) / n_int, 1e-9)
-    idx, b = subpixel.UniformSpline.basis(q, s0, h, n_int)
-    coef = spline_fit_nb(idx, b, X, np.ones(len(q), np.bool_), w, subpixel._penalty(n_int + 3), 1e-4)
-    return subpixel.UniformSpline(s0, h, n_int, coef)
+    """:meth:`recon.camera.Camera.project` compiled: world points (n, 3) mm -> pixels (n, 2), depths (n,) mm."""
+    return project_nb(P, cam.K, cam.dist14, cam.tilt[0], cam.T_cam_world)
 
 
 def _unit3(d: np.ndarray) -> np.ndarray:
     return d / np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
-
-
-def _interp_rows(x, xp, fp):
-    return np.stack([np.interp(x, xp, fp[:, j]) for j in range(fp.shape[1])], axis=1)
 
 
 def _strictly_increasing(x: np.ndarray) -> np.ndarray:
@@ -498,8 +459,8 @@ def _correspond(a: _ViewSamples, b: _ViewSamples, tol: float):
         q = np.unique(q)
         sa = np.interp(q, pa, a.s)
         sb = np.interp(q, pb, b.s)
-        da = _unit3(_interp_rows(q, pa, a.dirs))
-        db = _unit3(_interp_rows(q, pb, b.dirs))
+        da = _unit3(interp_rows(q, pa, a.dirs))
+        db = _unit3(interp_rows(q, pb, b.dirs))
         ca = np.interp(q, pa, a.cond)
         cb = np.interp(q, pb, b.cond)
         return sa, sb, da, db, ca, cb, "epipolar-angle"
@@ -636,10 +597,10 @@ def _to_tip(model: FastModel, views: dict, params: FastParams, dense: np.ndarray
         k = max(1, int(np.ceil(lam / fine)))
         return np.concatenate([dense, x_end + np.linspace(lam / k, lam, k)[:, None] * t1])
     if lam < 0:
-        s_d = _arc(dense)
+        s_d = arc_length(dense)
         keep_d = s_d <= s_d[-1] + lam
         if keep_d.sum() >= 2:
-            cut = _interp_rows(np.array([s_d[-1] + lam]), s_d, dense)
+            cut = interp_rows(np.array([s_d[-1] + lam]), s_d, dense)
             return np.concatenate([dense[keep_d], cut])
     return dense
 
@@ -656,8 +617,8 @@ def _transition(matched, s_tr: dict, q: np.ndarray, spl, base_ext: float, points
     if not trans:
         return float("nan"), np.full(3, np.nan)
     qt = sum(v * wt for v, wt in trans) / sum(wt for _, wt in trans)
-    transition_s = float(base_ext + _arc(spl(np.linspace(q[0], qt, 64)))[-1])
-    return transition_s, _interp_rows(np.array([transition_s]), _arc(points), points)[0]
+    transition_s = float(base_ext + arc_length(spl(np.linspace(q[0], qt, 64)))[-1])
+    return transition_s, interp_rows(np.array([transition_s]), arc_length(points), points)[0]
 
 
 def _short_view(model: FastModel, views: dict, sa_: _ViewSamples, sb_: _ViewSamples, params: FastParams) -> str | None:
@@ -719,12 +680,20 @@ def _matched_curve(model: FastModel, params: FastParams, sa_: _ViewSamples, sb_:
     w = np.clip(np.minimum(ca, cb), 0.03, 1.0) ** 2
     chord = float(np.sum(np.linalg.norm(np.diff(X[:: max(1, len(X) // 40)], axis=0), axis=1)))
     q_per_mm = (q[-1] - q[0]) / max(chord, 1e-6)
-    spl = _fit_weighted(q, X, params.knot_mm * q_per_mm, w)
+    spl = fit_curve(q, X, params.knot_mm * q_per_mm, w)
     return _Matched(s_a, s_b, ca, cb, q, gap, how, spl, chord)
 
 
 class FastReconstructor:
-    """The per-frame callable of the fast method (keeps the previous frame for the jump check)."""
+    """The per-frame callable of the fast method (keeps the previous frame for the jump check).
+
+    Parameters
+    ----------
+    model : FastModel
+        From :func:`prepare_fast`.
+    params : FastParams, optional
+        The parameters the model was prepared with.
+    """
 
     def __init__(self, model: FastModel, params: FastParams = FastParams()):
         self.model = model
@@ -747,7 +716,7 @@ class FastReconstructor:
             stages = {}
             roi = self._roi.get(name)
             try:
-                views[name] = extract_view(model.views[name], frames[name], params, roi=roi, timings=stages)
+                views[name] = extract_view(model.views[name], frames[name], params.view, roi=roi, timings=stages)
             except FrameError:
                 self._roi.pop(name, None)
                 raise
@@ -765,7 +734,7 @@ class FastReconstructor:
         """View ``name`` extracted once more (:func:`recon.subpixel.extract_view` keywords ``kw``) into ``views``;
         returns the pair's samples with that view's replaced."""
         model, params = self.model, self.params
-        views[name] = extract_view(model.views[name], frames[name], params, **kw)
+        views[name] = extract_view(model.views[name], frames[name], params.view, **kw)
         smp = _view_samples(model, name, views[name], params.sample_step_px)
         return (smp, samples[1]) if name == model.pair[0] else (samples[0], smp)
 
@@ -785,7 +754,48 @@ class FastReconstructor:
         _check_tip_agreement(model, views, sa_, sb_, params)
         return sa_, sb_
 
+    def _matched(self, frames: dict, views: dict, detail: dict) -> _Matched:
+        """The views' samples, after second tries where their tips disagree (:meth:`_agreeing`), matched and
+        triangulated (:func:`_matched_curve`); stage times (ms) into ``detail``: ``rays``, ``retry``, ``match_fit``."""
+        model, params = self.model, self.params
+        a, b = model.pair
+        t = time.perf_counter()
+        sa_, sb_ = (_view_samples(model, n, views[n], params.sample_step_px) for n in (a, b))
+        lap = time.perf_counter()
+        detail["rays"] = 1e3 * (lap - t)
+        tol = 2.0 / float(model.rig[a].K[0, 0])  # ~2 px of epipolar angle
+        n_short = _short_view(model, views, sa_, sb_, params)
+        if n_short is not None:
+            sa_, sb_ = self._agreeing(frames, views, sa_, sb_, n_short)
+            detail["retry"] = 1e3 * (time.perf_counter() - lap)
+        m = _matched_curve(model, params, sa_, sb_, tol)
+        detail["match_fit"] = 1e3 * (time.perf_counter() - lap)
+        return m
+
     def __call__(self, frames: dict) -> FastReconstruction:
+        """Reconstruct one frame pair.
+
+        Parameters
+        ----------
+        frames : dict
+            Camera name -> (H, W) or (H, W, 3) image (gray levels) of each
+            camera of ``model.pair``; other cameras are ignored.
+
+        Returns
+        -------
+        FastReconstruction
+            The backbone (world frame, mm), its tip and outer/inner
+            transition, the views' centres (image frame, px), and
+            ``jump_flag`` against the previous frame's backbone.
+
+        Raises
+        ------
+        FrameError
+            A view's frame is missing, unusable or shows no (or not all of
+            the) robot, a tube is too thin to resolve, or the two views
+            disagree (rays, tips); the message names the camera where one is
+            to blame.
+        """
         model, params = self.model, self.params
         timings = {}
         t_start = time.perf_counter()
@@ -793,35 +803,13 @@ class FastReconstructor:
         for name in model.pair:
             if name not in frames or frames[name] is None:
                 raise FrameError("no frame", name)
-            vm = model.views[name]
-            _check_tube_widths(name, vm, params.min_tube_width_px)
+            _check_tube_widths(name, model.views[name], params.min_tube_width_px)
         views = self._extract_views(frames, timings, detail)
         t = time.perf_counter()
-        a, b = model.pair
-        rig = model.rig
-        sa_, sb_ = (_view_samples(model, n, views[n], params.sample_step_px) for n in (a, b))
+        m = self._matched(frames, views, detail)
         lap = time.perf_counter()
-        detail["rays"] = 1e3 * (lap - t)
-        tol = 2.0 / float(rig[a].K[0, 0])  # ~2 px of epipolar angle
-        n_short = _short_view(model, views, sa_, sb_, params)
-        if n_short is not None:
-            sa_, sb_ = self._agreeing(frames, views, sa_, sb_, n_short)
-            detail["retry"] = 1e3 * (time.perf_counter() - lap)
-        m = _matched_curve(model, params, sa_, sb_, tol)
-        s_a, s_b, ca, cb, q, spl, chord = m.s_a, m.s_b, m.ca, m.cb, m.q, m.spline, m.chord
-        now = time.perf_counter()
-        detail["match_fit"] = 1e3 * (now - lap)
-        lap = now
-        fine = 0.5 * params.output_step_mm
-        n_dense = max(8, int(chord / fine))
-        qq = np.linspace(q[0], q[-1], n_dense)
-        dense = spl(qq)
-        dense, base_ext = _to_base(model, params, dense, spl.derivative()(q[0]), fine)
-        s_tr = {n: _transition_s(views[n], model.views[n]) for n in (a, b)}
-        dense = _to_tip(model, views, params, dense, spl.derivative()(q[-1]), s_tr, fine)
-        points = _resample(dense, params.output_step_mm)
-        length = float(_arc(points)[-1])
-        transition_s, transition_world = _transition(((a, s_a, ca), (b, s_b, cb)), s_tr, q, spl, base_ext, points)
+        s_tr = {n: _transition_s(views[n], model.views[n]) for n in model.pair}
+        points, transition = _backbone(model, params, views, m, s_tr)
         now = time.perf_counter()
         detail["ends"] = 1e3 * (now - lap)
         timings["triangulate"] = 1e3 * (now - t)
@@ -830,29 +818,52 @@ class FastReconstructor:
         if self._prev is not None:
             reason = jump_check(self._prev[0], self._prev[1], points, tip, params.jump)
         self._prev = (points, tip)
-        shapes = {n: model.views[n].shape for n in (a, b)}
         timings["total"] = 1e3 * (time.perf_counter() - t_start)
         timings.update(detail)
-        return FastReconstruction(
-            points_world_mm=points,
-            tip_world_mm=tip,
-            transition_s_mm=transition_s,
-            transition_world_mm=transition_world,
-            length_mm=length,
-            silhouettes=_LazyImages((a, b), lambda n: _draw_silhouette(views[n], shapes[n])),
-            centerlines=_LazyImages((a, b), lambda n: _draw_centerline(views[n], shapes[n], s_tr[n])),
-            centerlines_px={n: views[n].points_px for n in (a, b)},
-            widths_px={n: views[n].width_px for n in (a, b)},
-            box=(points.min(axis=0), points.max(axis=0)),
-            voxel_size_mm=None,
-            n_voxels=0,
-            jump_flag=reason is not None,
-            jump_reason=reason,
-            ray_gap_mm=float(np.median(m.gap)),
-            correspondence=m.how,
-            timings_ms=timings,
-            suspect_reason=_ORDERED_REASON if m.how == "ordered-dp" else None,
-        )
+        return _reconstruction(model, views, m, s_tr, (points, tip, transition), reason, timings)
+
+
+def _backbone(model: FastModel, params: FastParams, views: dict, m: _Matched, s_tr: dict) -> tuple:
+    """The matched curve ``m`` continued straight back to the base plane (or the border) and to the tip seen in
+    both views, resampled every ``output_step_mm``: ``(points (n, 3) world mm, (transition_s_mm,
+    transition_world_mm))`` (``s_tr``: each view's curve parameter of the outer tube's end, px)."""
+    a, b = model.pair
+    q, spl = m.q, m.spline
+    fine = 0.5 * params.output_step_mm
+    dense = spl(np.linspace(q[0], q[-1], max(8, int(m.chord / fine))))
+    dense, base_ext = _to_base(model, params, dense, spl.derivative()(q[0]), fine)
+    dense = _to_tip(model, views, params, dense, spl.derivative()(q[-1]), s_tr, fine)
+    points = resample_arc(dense, params.output_step_mm, spread=True)[0]
+    return points, _transition(((a, m.s_a, m.ca), (b, m.s_b, m.cb)), s_tr, q, spl, base_ext, points)
+
+
+def _reconstruction(model: FastModel, views: dict, m: _Matched, s_tr: dict, backbone: tuple, reason,
+                    timings: dict) -> FastReconstruction:
+    """The :class:`FastReconstruction` of a pair: ``backbone`` = (points (n, 3) world mm, tip (3,) world mm,
+    (transition_s_mm, transition_world_mm)), the jump check's ``reason`` (None: plausible)."""
+    points, tip, (transition_s, transition_world) = backbone
+    pair = model.pair
+    shapes = {n: model.views[n].shape for n in pair}
+    return FastReconstruction(
+        points_world_mm=points,
+        tip_world_mm=tip,
+        transition_s_mm=transition_s,
+        transition_world_mm=transition_world,
+        length_mm=float(arc_length(points)[-1]),
+        silhouettes=_LazyImages(pair, lambda n: _draw_silhouette(views[n], shapes[n])),
+        centerlines=_LazyImages(pair, lambda n: _draw_centerline(views[n], shapes[n], s_tr[n])),
+        centerlines_px={n: views[n].points_px for n in pair},
+        widths_px={n: views[n].width_px for n in pair},
+        box=(points.min(axis=0), points.max(axis=0)),
+        voxel_size_mm=None,
+        n_voxels=0,
+        jump_flag=reason is not None,
+        jump_reason=reason,
+        ray_gap_mm=float(np.median(m.gap)),
+        correspondence=m.how,
+        timings_ms=timings,
+        suspect_reason=_ORDERED_REASON if m.how == "ordered-dp" else None,
+    )
 
 
 def _warm_up(rec: FastReconstructor, background_frames: dict, length_mm: float = 40.0) -> None:

@@ -35,7 +35,7 @@ def _is_dataclass_type(tp) -> bool:
 #: Parameters that must be > 0 beyond what their dataclasses check: zero would refuse every
 #: frame (a ray gap) or stall a loop (a step, a footprint). Every other number must be >= 0:
 #: no parameter of ctr-bench's methods is signed.
-_POSITIVE = frozenset({"max_ray_gap_mm", "sparse_step_px", "footprint_scale"})
+_POSITIVE = frozenset({"max_ray_gap_mm", "footprint_scale"})
 
 
 def params_from_dict(cls, data: dict, source: str = "params", path: str = ""):

@@ -35,6 +35,11 @@ The tube is found coarsely, then measured finely only where it is:
    profile by profile (:func:`_follow_tube`). The tip is measured along the
    tube's axis on lines parallel to it, each against its own interior contrast.
 
+The per-pixel loops run compiled (:mod:`recon._kernels`, numba); this module
+prepares their inputs and makes the decisions between them. Their NumPy
+equivalents live on as test oracles (``tests/fast_oracles.py``). The
+parameters are :class:`ViewParams`.
+
 Pixel coordinates follow OpenCV: (0, 0) is the centre of the top-left pixel.
 """
 from __future__ import annotations
@@ -46,43 +51,39 @@ import cv2
 import numpy as np
 from scipy.ndimage import median_filter
 
+from ._kernels import (
+    bfs_path_nb,
+    coarse_foreground_nb,
+    frame_coefficients_nb,
+    frame_shift_nb,
+    near_any_nb,
+    profile_values_nb,
+    profiles_at_seeds_nb,
+    ridge_hits_nb,
+    spline_eval_nb,
+    spline_fit_nb,
+    spline_robust_nb,
+    tip_along_axis_nb,
+)
+from .backbone import arc_length
 from .background import no_picture, to_gray
 from .errors import FrameError
 
-try:  # compiled per-pixel loops (optional; the NumPy code below gives the same results)
-    from ._kernels import (
-        bfs_path_nb,
-        coarse_foreground_nb,
-        frame_coefficients_nb,
-        frame_shift_nb,
-        near_any_nb,
-        profile_edges_nb,
-        profile_values_nb,
-        profiles_at_seeds_nb,
-        ridge_hits_nb,
-        spline_eval_nb,
-        spline_robust_nb,
-        tip_along_axis_nb,
-    )
-
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover - depends on the environment
-    HAVE_NUMBA = False
-
-#: Use the compiled kernels when numba is there (tests switch this off to compare).
-USE_NUMBA = HAVE_NUMBA
-
 __all__ = [
+    "ViewParams",
     "ViewModel",
     "ViewCenterline",
     "prepare_view",
+    "frame_coefficients",
+    "frame_shift",
     "coarse_path",
     "coarse_abs_difference",
-    "profile_edges",
     "edges_from_profiles",
     "fit_curve",
     "UniformSpline",
     "extract_view",
+    "interp_rows",
+    "resample_arc",
 ]
 
 _BORDER_NAMES = ("left", "top", "right", "bottom")
@@ -91,6 +92,83 @@ _BORDER_NAMES = ("left", "top", "right", "bottom")
 #: also tests the 2x2 pixels' mean absolute difference (see coarse_path): bridges cancellations up to
 #: 2 * 2 coarse px (16 px) along a tube.
 _ABS_REACH = 2
+
+
+# ----------------------------------------------------------------------------- parameters
+@dataclass(frozen=True)
+class ViewParams:
+    """Parameters of one view's centerline extraction (:func:`extract_view`).
+
+    Nested in :class:`recon.fast.FastParams` as ``view`` (a ``[view]`` table
+    in a parameter file). Image quantities are in full-resolution pixels (px)
+    and gray levels (DN) of the view's camera.
+
+    Attributes
+    ----------
+    base_search_px : float
+        The robot's region must come within this distance (px) of the
+        projected base (or of where the insertion axis enters the image).
+    profile_step_px : float
+        Spacing of the measuring profiles across the tube along its path (px).
+    edge_threshold_sigma, edge_min_dn : float
+        A profile sample is tube when its difference exceeds this many sigmas
+        (of the profile's noise: the pixel noise over the square root of the
+        lines averaged) and gray levels.
+    profile_half_lines : int
+        Each profile averages ``2 profile_half_lines + 1`` parallel lines along
+        the tube (fewer where the tube runs slanted to them), so that a tube
+        little brighter or darker than the backdrop still has edges.
+    single_line_rim_factor : float
+        The middle line is tried alone first: where both its rims exceed this
+        many times the single-line threshold (``edge_threshold_sigma`` sigmas,
+        at least ``edge_min_dn``) its edges are used and the other lines are
+        not cut (the averaging is ~5x the work per profile); inf: always
+        average.
+    min_width_fraction, max_width_fraction : float
+        Profiles narrower than this fraction of the inner tube's width, or
+        wider than this fraction of the outer tube's, are rejected.
+    follow_gap_diameters : float
+        Following the tube past the coarse path bridges stretches without
+        edges (the tube in front of backdrop as bright as itself) up to this
+        many outer-tube diameters, if the tube is found again beyond them
+        (:func:`_follow_tube`).
+    follow_energy : bool
+        While following, a profile without a pair of edges still finds the
+        tube where a window of its width differs from the background by half
+        the edge threshold on average (a shiny tube whose rims match the
+        backdrop, or one changing polarity along the way).
+    outlier_sigma, outlier_min_px : float
+        A centre farther than ``max(outlier_sigma * MAD, outlier_min_px)``
+        (px) from the spline is rejected.
+    spline_knot_px : float
+        Knot spacing of the view's centerline spline (px of its curve
+        parameter, the arc length along the coarse path).
+    jitter_compensation : bool
+        Measure each frame's image shift against the background's static
+        edges (camera jitter, :func:`frame_shift`), so that the caller can undo
+        it before triangulating; False: ``ViewCenterline.shift_px`` is zero.
+    """
+
+    base_search_px: float = 24.0
+    profile_step_px: float = 2.0
+    edge_threshold_sigma: float = 5.0
+    edge_min_dn: float = 8.0
+    profile_half_lines: int = 2
+    single_line_rim_factor: float = 3.0
+    min_width_fraction: float = 0.2
+    max_width_fraction: float = 1.3
+    follow_gap_diameters: float = 3.0
+    follow_energy: bool = True
+    outlier_sigma: float = 4.0
+    outlier_min_px: float = 0.5
+    spline_knot_px: float = 40.0
+    jitter_compensation: bool = True
+
+    def __post_init__(self):
+        # Zero would stall the profile walk or leave the spline without knot intervals.
+        for name in ("profile_step_px", "spline_knot_px"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"ViewParams.{name} must be > 0, got {getattr(self, name)}")
 
 
 # ----------------------------------------------------------------------------- model
@@ -109,10 +187,6 @@ class ViewModel:
         Coarse downsampling factor.
     coarse_mean : (Hc*Wc,) float32
     coarse_basis : (k, Hc*Wc) float32
-    coarse_gram : (k, k) float64
-        ``coarse_basis @ coarse_basis.T``.
-    coarse_basis_t : (Hc*Wc, k) float32
-        The same basis pixel-major (for gathering pixels).
     sample_index : (M, 4) int
         Full-resolution pixels whose mean is each of M fixed coarse pixels
         (a regular grid) on which the eigenbackground coefficients are fitted.
@@ -162,8 +236,6 @@ class ViewModel:
     factor: int
     coarse_mean: np.ndarray
     coarse_basis: np.ndarray
-    coarse_gram: np.ndarray
-    coarse_basis_t: np.ndarray
     coarse_threshold: np.ndarray
     sample_index: np.ndarray
     sample_mean: np.ndarray
@@ -188,6 +260,7 @@ class ViewModel:
 
     @property
     def coarse_shape(self) -> tuple:
+        """``(Hc, Wc)``: the coarse image's size (coarse px), ``shape`` floor-divided by ``factor``."""
         return (self.shape[0] // self.factor, self.shape[1] // self.factor)
 
 
@@ -220,15 +293,30 @@ def _central_pixels(H: int, W: int, factor: int) -> np.ndarray:
 
 
 def coarse_abs_difference(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, roi: tuple) -> np.ndarray:
-    """Mean absolute background difference of the central 2x2 pixels of each coarse pixel in ``roi`` (gray levels).
+    """Mean absolute background difference of the central 2x2 pixels of each coarse pixel in ``roi``.
 
-    ``roi`` = ``(x0, y0, x1, y1)`` in coarse pixels; returns (y1-y0, x1-x0)
-    float32. The background is rebuilt at those pixels only
-    (``ViewModel.stack @ coeff``). Absolute values, not the difference of the
-    averages: a tube one or two blocks wide often has dark rims and a
-    highlight brighter than the backdrop, whose differences cancel in an
-    average (an inner tube of 4-6 px dropped out of the coarse mask for one
-    or a few coarse pixels, and the path stopped there, short of the tip).
+    The background is rebuilt at those pixels only (``ViewModel.stack @
+    coeff``). Absolute values, not the difference of the averages: a tube
+    one or two blocks wide often has dark rims and a highlight brighter than
+    the backdrop, whose differences cancel in an average (an inner tube of
+    4-6 px dropped out of the coarse mask for one or a few coarse pixels, and
+    the path stopped there, short of the tip).
+
+    Parameters
+    ----------
+    model : ViewModel
+        The view's constants.
+    frame : (H, W) uint8 array
+        The frame (gray levels).
+    coeff : (k+1,) float32 array
+        The frame's background coefficients (:func:`frame_coefficients`).
+    roi : (x0, y0, x1, y1)
+        Coarse pixels (image frame, coarse px).
+
+    Returns
+    -------
+    (y1-y0, x1-x0) float32 array
+        The mean absolute difference (gray levels).
     """
     f = model.factor
     lo, hi = _central_offsets(f)
@@ -237,21 +325,6 @@ def coarse_abs_difference(model: ViewModel, frame: np.ndarray, coeff: np.ndarray
     px = np.stack([frame[y0 * f + a: y1 * f: f, x0 * f + b: x1 * f: f] for a in (lo, hi) for b in (lo, hi)], axis=-1)
     bg = model.coarse_stack[y0:y1, x0:x1] @ coeff
     return np.abs(px.astype(np.float32) - bg).mean(axis=-1)
-
-
-def _coarse_coefficients(model: ViewModel, r: np.ndarray, exclude: np.ndarray | None = None) -> np.ndarray:
-    """Least-squares eigenbackground coefficients of the coarse residual ``r = f - mean``."""
-    B = model.coarse_basis
-    rhs = (B @ r).astype(np.float64)
-    G = model.coarse_gram
-    if exclude is not None and exclude.size:
-        Bo = model.coarse_basis_t[exclude].T.astype(np.float64)
-        G = G - Bo @ Bo.T
-        rhs = rhs - Bo @ r[exclude].astype(np.float64)
-    try:
-        return np.linalg.solve(G, rhs).astype(np.float32)
-    except np.linalg.LinAlgError:
-        return np.linalg.lstsq(G, rhs, rcond=None)[0].astype(np.float32)
 
 
 def _entry_point(camera, base_world_mm, axis_world, H: int, W: int, margin: float = 2.0, reach_mm: float = 400.0):
@@ -281,41 +354,59 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
                  jitter_margin: float = 1.5, n_samples: int = 2048) -> ViewModel:
     """Build a :class:`ViewModel` from a fitted :class:`~recon.background.EigenBackground`.
 
-    ``background_frames`` (N, H, W) set the noise levels: the coarse threshold
-    of each pixel is ``max(threshold_min_dn, threshold_sigma * sigma,
-    jitter_margin * max residual)`` over the background frames, with sigma the
-    noise of a 2x2 mean and the residual the larger of the two statistics the
-    live frames are thresholded on (:func:`coarse_abs_difference`), the
-    maximum taken over the pixel's 3x3 neighbourhood (the residual of a static
-    edge moves with the jitter).
+    ``background_frames`` set the noise levels: the coarse threshold of each
+    pixel is ``max(threshold_min_dn, threshold_sigma * sigma, jitter_margin *
+    max residual)`` over the background frames, with sigma the noise of a 2x2
+    mean and the residual the larger of the two statistics the live frames
+    are thresholded on (:func:`coarse_abs_difference`), the maximum taken over
+    the pixel's 3x3 neighbourhood (the residual of a static edge moves with
+    the jitter).
+
+    Parameters
+    ----------
+    name : str
+        The camera's name (errors name it).
+    eigen : recon.background.EigenBackground
+        The view's eigenbackgrounds, (H, W) px, gray levels.
+    camera : recon.camera.Camera
+        The calibrated camera of the view (world frame, mm).
+    base_world_mm : (3,) array_like
+        The robot base (world frame, mm).
+    axis_world : (3,) array_like
+        The insertion axis' direction (world frame; need not be unit).
+    outer_radius_mm, inner_radius_mm : float
+        Tube radii (mm); turned into px where the view sees the robot.
+    background_frames : (N, H, W) or (N, H, W, 3) array
+        Background frames of the view (gray levels; RGB is converted).
+    factor : int, optional
+        Coarse downsampling factor (full-resolution px per coarse px).
+    threshold_sigma, threshold_min_dn : float, optional
+        Floor of the coarse threshold: noise sigmas of a 2x2 mean, and gray
+        levels.
+    jitter_margin : float, optional
+        Factor on the background frames' largest coarse residual.
+    n_samples : int, optional
+        About how many coarse pixels the per-frame coefficients are fitted on.
+
+    Returns
+    -------
+    ViewModel
+        The view's constants; positions in the image's pixel frame (px,
+        OpenCV convention).
     """
     H, W = eigen.shape
     k = eigen.k
-    stack = np.empty((H * W, k + 1), np.float32)
-    stack[:, 0] = eigen.mean
-    stack[:, 1:] = eigen.basis.T
-    mean_img = eigen.mean.reshape(H, W)
-    coarse_mean = _downsample(mean_img, factor).ravel().astype(np.float32)
-    coarse_basis = np.stack([_downsample(b.reshape(H, W), factor).ravel() for b in eigen.basis]).astype(np.float32)
-    gram = coarse_basis.astype(np.float64) @ coarse_basis.T.astype(np.float64)
+    stack, coarse_mean, coarse_basis = _background_arrays(eigen, factor)
     hc, wc = H // factor, W // factor
-    # Coefficient samples: a regular grid of ~n_samples coarse pixels, and the fine pixels each averages.
-    step = max(1, int(np.sqrt(hc * wc / n_samples)))
-    gy, gx = np.mgrid[step // 2:hc:step, step // 2:wc:step]
-    gy, gx = gy.ravel(), gx.ravel()
-    scoarse = gy * wc + gx
-    sidx = _central_pixels(H, W, factor)[gy, gx]
-    base_uv, _ = camera.project(np.asarray(base_world_mm, float)[None])
-    tip_uv, _ = camera.project(np.asarray(base_world_mm, float)[None] + 5.0 * np.asarray(axis_world, float)[None])
-    axis_px = tip_uv[0] - base_uv[0]
-    axis_px /= max(np.linalg.norm(axis_px), 1e-9)
+    scoarse, sidx = _coefficient_samples(H, W, factor, n_samples)
+    base_uv, axis_px = _image_axis(camera, base_world_mm, axis_world)
     start_px, start_search, seen_at = _entry_point(camera, base_world_mm, axis_world, H, W)
     # Tube widths where the robot is seen: at the base, or where it enters the view (an out-of-view base can
     # lie farther from the camera than any part of the robot in the image, and the tubes look thinner there).
     mm_px = camera.mm_per_pixel_at(seen_at)
     model = ViewModel(
         name=name, shape=(H, W), stack=stack, factor=factor, coarse_mean=coarse_mean, coarse_basis=coarse_basis,
-        coarse_gram=gram, coarse_basis_t=np.ascontiguousarray(coarse_basis.T), coarse_threshold=np.zeros((hc, wc), np.float32),
+        coarse_threshold=np.zeros((hc, wc), np.float32),
         sample_index=sidx, sample_mean=coarse_mean[scoarse], sample_basis_t=np.ascontiguousarray(coarse_basis[:, scoarse].T.astype(np.float64)),
         sample_gram=coarse_basis[:, scoarse].astype(np.float64) @ coarse_basis[:, scoarse].T.astype(np.float64),
         sample_threshold=np.zeros(scoarse.size, np.float32), sample_prior=np.zeros(k), sigma_fine=1.0,
@@ -326,22 +417,75 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
         start_px=start_px, start_search_px=start_search,
         width_at="at the robot base" if np.array_equal(seen_at, np.asarray(base_world_mm, float)) else "where the robot enters the image",
     )
-    # Pixel noise from differences of consecutive background frames (robust; offsets removed).
     frames = to_gray(background_frames)
+    sigma_pix = _pixel_noise(frames, H, W)
+    sigma_c = sigma_pix / 2.0  # a coarse pixel averages 2x2 pixels
+    floor = max(threshold_min_dn, threshold_sigma * sigma_c)
+    lam = np.maximum(np.asarray(eigen.eigenvalues, float), 1e-9)
+    # The prior and the floor first: the background frames' residuals below are fitted with them, as live frames are.
+    object.__setattr__(model, "sample_prior", sigma_c ** 2 / lam)
+    object.__setattr__(model, "sample_threshold", np.full(scoarse.size, floor, np.float32))
+    thr = _coarse_thresholds(model, frames, jitter_margin, floor)
+    object.__setattr__(model, "coarse_threshold", thr.astype(np.float32))
+    object.__setattr__(model, "sample_threshold", thr.reshape(-1)[scoarse].astype(np.float32))
+    object.__setattr__(model, "sigma_fine", sigma_pix)
+    _prepare_shift(model, eigen.mean.reshape(H, W), sigma_pix)
+    return model
+
+
+def _background_arrays(eigen, factor: int) -> tuple:
+    """``(stack, coarse_mean, coarse_basis)`` of :class:`ViewModel` from the eigenbackgrounds (gray levels)."""
+    H, W = eigen.shape
+    stack = np.empty((H * W, eigen.k + 1), np.float32)
+    stack[:, 0] = eigen.mean
+    stack[:, 1:] = eigen.basis.T
+    coarse_mean = _downsample(eigen.mean.reshape(H, W), factor).ravel().astype(np.float32)
+    coarse_basis = np.stack([_downsample(b.reshape(H, W), factor).ravel() for b in eigen.basis]).astype(np.float32)
+    return stack, coarse_mean, coarse_basis
+
+
+def _coefficient_samples(H: int, W: int, factor: int, n_samples: int) -> tuple:
+    """The coarse pixels the per-frame coefficients are fitted on: a regular grid of about ``n_samples``.
+
+    Returns ``(flat coarse indices (M,), the full-resolution pixels each averages (M, 4) flat indices)``.
+    """
+    hc, wc = H // factor, W // factor
+    step = max(1, int(np.sqrt(hc * wc / n_samples)))
+    gy, gx = np.mgrid[step // 2:hc:step, step // 2:wc:step]
+    gy, gx = gy.ravel(), gx.ravel()
+    return gy * wc + gx, _central_pixels(H, W, factor)[gy, gx]
+
+
+def _image_axis(camera, base_world_mm, axis_world) -> tuple:
+    """The base projected into the image (px) and the unit image direction of the insertion axis there."""
+    base_uv, _ = camera.project(np.asarray(base_world_mm, float)[None])
+    tip_uv, _ = camera.project(np.asarray(base_world_mm, float)[None] + 5.0 * np.asarray(axis_world, float)[None])
+    axis_px = tip_uv[0] - base_uv[0]
+    axis_px /= max(np.linalg.norm(axis_px), 1e-9)
+    return base_uv, axis_px
+
+
+def _pixel_noise(frames: np.ndarray, H: int, W: int) -> float:
+    """Pixel noise (gray levels, at least 0.5) from differences of consecutive (N, H, W) background frames.
+
+    Robust (medians of absolute values), and differences of horizontal
+    neighbours of the frame-to-frame difference cancel its smooth part (gain,
+    ramps): 4 sigma^2 of pixel noise remain.
+    """
     sub = np.arange(0, H * W, 61)
     flat = frames.reshape(len(frames), -1)
-    # Differences of horizontal neighbours of the frame-to-frame difference cancel its smooth part
-    # (gain, ramps): 4 sigma^2 of pixel noise remain.
     sub = sub[(sub % W) < W - 1]
     dd = [(flat[i + 1, sub + 1].astype(np.float32) - flat[i, sub + 1]) - (flat[i + 1, sub].astype(np.float32) - flat[i, sub])
           for i in range(min(len(frames) - 1, 8))]
     sigma_pix = float(np.median([1.4826 * np.median(np.abs(d)) for d in dd])) / 2.0 if dd else 1.0
-    sigma_pix = max(sigma_pix, 0.5)
-    sigma_c = sigma_pix / 2.0  # a coarse pixel averages 2x2 pixels
-    lam = np.maximum(np.asarray(eigen.eigenvalues, float), 1e-9)
-    object.__setattr__(model, "sample_prior", sigma_c ** 2 / lam)
-    object.__setattr__(model, "sample_threshold", np.full(scoarse.size, max(threshold_min_dn, threshold_sigma * sigma_c), np.float32))
-    # Residuals of (at most 12) background frames, fitted as live frames are: the static edges' flicker.
+    return max(sigma_pix, 0.5)
+
+
+def _coarse_thresholds(model: ViewModel, frames: np.ndarray, jitter_margin: float, floor: float) -> np.ndarray:
+    """(Hc, Wc) float32 coarse threshold (gray levels): ``jitter_margin`` times the largest residual of (at
+    most 12) background frames over each pixel's 3x3 neighbourhood (the static edges' flicker moves with the
+    jitter), at least ``floor``."""
+    hc, wc = model.coarse_shape
     pick = np.unique(np.linspace(0, len(frames) - 1, min(12, len(frames))).round().astype(int))
     maxabs = np.zeros((hc, wc), np.float32)
     for i in pick:
@@ -349,12 +493,7 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
         res = coarse_abs_difference(model, f, frame_coefficients(model, f), (0, 0, wc, hc))
         np.maximum(maxabs, res, out=maxabs)
     thr = cv2.dilate(maxabs, np.ones((3, 3), np.uint8)) * np.float32(jitter_margin)
-    thr = np.maximum(thr, np.float32(max(threshold_min_dn, threshold_sigma * sigma_c)))
-    object.__setattr__(model, "coarse_threshold", thr.astype(np.float32))
-    object.__setattr__(model, "sample_threshold", thr.reshape(-1)[scoarse].astype(np.float32))
-    object.__setattr__(model, "sigma_fine", sigma_pix)
-    _prepare_shift(model, mean_img, sigma_pix)
-    return model
+    return np.maximum(thr, np.float32(floor))
 
 
 def _prepare_shift(model: ViewModel, mean_img: np.ndarray, sigma_pix: float, n: int = 3000, border: int = 8) -> None:
@@ -385,73 +524,40 @@ def _prepare_shift(model: ViewModel, mean_img: np.ndarray, sigma_pix: float, n: 
 
 
 def frame_shift(model: ViewModel, frame: np.ndarray, max_px: float = 3.0, iterations: int = 1) -> np.ndarray:
-    """Image shift (du, dv) px of a frame against the mean background: the camera's jitter.
+    """Image shift of a frame against the mean background: the camera's jitter.
 
     Fitted at the static edges of the background (:func:`_prepare_shift`) with
     the lighting (gain, offset, linear ramps) as nuisance terms; pixels that do
-    not fit (the robot in front of an edge) are dropped and the fit repeated.
-    Zero when the background has no usable texture or the fit is implausible.
+    not fit (the robot in front of an edge) are dropped and the fit repeated,
+    then ``iterations`` Gauss-Newton steps re-sample the regressors at the
+    shifted positions (:func:`recon._kernels.frame_shift_nb`).
+
+    Parameters
+    ----------
+    model : ViewModel
+        The view's constants.
+    frame : (H, W) uint8 array
+        The frame (gray levels).
+    max_px : float, optional
+        Largest plausible shift (px); a larger or non-finite one gives zeros.
+    iterations : int, optional
+        Gauss-Newton steps after the first, linearized fit.
+
+    Returns
+    -------
+    (2,) float64 array
+        ``(du, dv)`` px in the image's pixel frame: where the frame's content
+        lies relative to the mean background. Zeros when the background has
+        no usable texture or the fit is implausible.
     """
     if model.shift_index is None:
         return np.zeros(2)
-    if USE_NUMBA:
-        H, W = model.shape
-        d = np.array(frame_shift_nb(frame.reshape(-1), model.stack[:, 0], W, H, model.shift_index, model.shift_design,
-                                    model.shift_gram, iterations))
-        if not np.all(np.isfinite(d)) or float(np.hypot(d[0], d[1])) > max_px:
-            return np.zeros(2)
-        return d
-    D = model.shift_design
-    f = np.take(frame.reshape(-1), model.shift_index).astype(np.float64)
-    beta = np.linalg.solve(model.shift_gram, D.T @ f)
-    r = f - D @ beta
-    s = 1.4826 * float(np.median(np.abs(r))) + 1e-6
-    bad = np.abs(r) > 4.0 * s
-    if bad.any():
-        Db = D[bad]
-        beta = np.linalg.solve(model.shift_gram - Db.T @ Db, D.T @ f - Db.T @ f[bad])
-    d = beta[4:] / beta[0]  # the shifted mean is scaled by the gain too
-    for _ in range(iterations):
-        # Gauss-Newton: regressors re-sampled at the shifted positions, for the remaining shift.
-        if not np.all(np.isfinite(d)) or float(np.hypot(d[0], d[1])) > max_px:
-            break
-        D2 = _shifted_design(model, d)
-        keep = ~bad
-        G2 = D2[keep].T @ D2[keep]
-        beta = np.linalg.solve(G2, D2[keep].T @ f[keep])
-        d = d + beta[4:] / beta[0]
+    H, W = model.shape
+    d = np.array(frame_shift_nb(frame.reshape(-1), model.stack[:, 0], W, H, model.shift_index, model.shift_design,
+                                model.shift_gram, iterations))
     if not np.all(np.isfinite(d)) or float(np.hypot(d[0], d[1])) > max_px:
         return np.zeros(2)
     return d
-
-
-def _shifted_design(model: ViewModel, d: np.ndarray) -> np.ndarray:
-    """:attr:`ViewModel.shift_design` with the mean and its gradients taken at ``p - d`` (bilinear)."""
-    H, W = model.shape
-    idx = model.shift_index
-    y, x = np.divmod(idx, W)
-    u = np.clip(x - d[0], 0, W - 2.001)
-    v = np.clip(y - d[1], 0, H - 2.001)
-    u0 = np.floor(u).astype(np.int64)
-    v0 = np.floor(v).astype(np.int64)
-    fu, fv = u - u0, v - v0
-    m = model.stack[:, 0]
-    base = v0 * W + u0
-
-    def at(k):
-        return m[base + k]
-
-    m00, m01, m10, m11 = at(0), at(1), at(W), at(W + 1)
-    mv = (1 - fv) * ((1 - fu) * m00 + fu * m01) + fv * ((1 - fu) * m10 + fu * m11)
-    gx = (1 - fv) * (m01 - m00) + fv * (m11 - m10)
-    gy = (1 - fu) * (m10 - m00) + fu * (m11 - m01)
-    D = model.shift_design.copy()
-    D[:, 0] = mv
-    D[:, 2] = (x / W - 0.5) * mv
-    D[:, 3] = (y / H - 0.5) * mv
-    D[:, 4] = -gx
-    D[:, 5] = -gy
-    return D
 
 
 # ----------------------------------------------------------------------------- coarse stage
@@ -480,48 +586,6 @@ class CoarseResult:
     coarse_bbox: tuple
 
 
-_NEIGHBOURS = [(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)]
-
-
-def _geodesic_path(mask: np.ndarray, start: tuple) -> np.ndarray:
-    """Shortest 8-connected path inside ``mask`` from ``start`` (y, x) to the farthest pixel; (n, 2) (y, x).
-
-    Breadth-first (hop count); among the pixels at the largest hop count the
-    one farthest from ``start`` is the end. Plain Python on lists: the graphs
-    are a few hundred pixels, for which scipy's sparse machinery costs more.
-    """
-    ys, xs = np.nonzero(mask)
-    n = ys.size
-    h, w = mask.shape
-    index = np.full((h + 2, w + 2), -1, np.int32)
-    index[ys + 1, xs + 1] = np.arange(n, dtype=np.int32)
-    nb = np.stack([index[ys + 1 + dy, xs + 1 + dx] for dy, dx in _NEIGHBOURS], axis=1).tolist()
-    s = int(index[start[0] + 1, start[1] + 1])
-    pred = [-2] * n
-    pred[s] = -1
-    frontier = [s]
-    last = frontier
-    while frontier:
-        nxt = []
-        for node in frontier:
-            for m in nb[node]:
-                if m >= 0 and pred[m] == -2:
-                    pred[m] = node
-                    nxt.append(m)
-        if nxt:
-            last = nxt
-        frontier = nxt
-    la = np.asarray(last)
-    node = int(la[np.argmax((ys[la] - start[0]) ** 2 + (xs[la] - start[1]) ** 2)])
-    path = [node]
-    while pred[node] >= 0:
-        node = pred[node]
-        path.append(node)
-    path.reverse()
-    p = np.asarray(path)
-    return np.stack([ys[p], xs[p]], axis=1)
-
-
 def frame_coefficients(model: ViewModel, frame: np.ndarray) -> np.ndarray:
     """Eigenbackground coefficients ``[1, c_1..c_k]`` of a frame, fitted on the fixed coarse samples.
 
@@ -531,6 +595,19 @@ def frame_coefficients(model: ViewModel, frame: np.ndarray) -> np.ndarray:
     vary along, e.g. noise picked up from few frames, are not blown up by
     fitting them on a subset), then once more without the pixels the first
     fit calls foreground (the robot must not pull the background).
+
+    Parameters
+    ----------
+    model : ViewModel
+        The view's constants (its ``sample_*`` fields).
+    frame : (H, W) uint8 array
+        The frame (gray levels).
+
+    Returns
+    -------
+    (k+1,) float32 array
+        ``[1, c_1..c_k]``: multiplies the rows of ``ViewModel.stack`` to
+        rebuild the background (gray levels).
 
     Raises
     ------
@@ -542,59 +619,31 @@ def frame_coefficients(model: ViewModel, frame: np.ndarray) -> np.ndarray:
     why = no_picture(samples, model.peak, model.background_range)
     if why:
         raise FrameError(why, model.name)
-    if USE_NUMBA:
-        c, _ = frame_coefficients_nb(frame.reshape(-1), model.sample_index, model.sample_mean, model.sample_basis_t,
-                                     model.sample_gram + np.diag(model.sample_prior), model.sample_threshold)
-        return np.concatenate([[1.0], c]).astype(np.float32)
-    fs = samples.sum(axis=1, dtype=np.float64) * 0.25
-    r = fs - model.sample_mean
-    Bt = model.sample_basis_t
-    rhs = Bt.T @ r
-    G = model.sample_gram + np.diag(model.sample_prior)
-    c = np.linalg.solve(G, rhs)
-    out = np.abs(r - Bt @ c) > 0.5 * model.sample_threshold
-    if out.any():
-        Bo = Bt[out]
-        try:
-            c = np.linalg.solve(G - Bo.T @ Bo, rhs - Bo.T @ r[out])
-        except np.linalg.LinAlgError:
-            pass
+    c, _ = frame_coefficients_nb(frame.reshape(-1), model.sample_index, model.sample_mean, model.sample_basis_t,
+                                 model.sample_gram + np.diag(model.sample_prior), model.sample_threshold)
     return np.concatenate([[1.0], c]).astype(np.float32)
 
 
 def _coarse_foreground(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, box: tuple) -> tuple:
     """The coarse foreground mask (uint8, 1 = foreground) of ``box`` = (x0, y0, x1, y1) coarse px, whether
-    any pixel is foreground, and the largest excess over the threshold (gray levels)."""
+    any pixel is foreground, and the largest excess over the threshold (gray levels).
+
+    Foreground: the 2x2 average's difference from the background over the
+    threshold (cheap: coarse arrays), or, within :data:`_ABS_REACH` coarse
+    pixels of such a pixel, the 2x2 pixels' mean absolute difference (the
+    background rebuilt at 4 pixels): across a tube a coarse pixel or two wide,
+    its dark rims and a highlight brighter than the backdrop can cancel in the
+    average over a few coarse pixels along it.
+    """
     f = model.factor
     hc, wc = model.coarse_shape
     rx0, ry0, rx1, ry1 = box
     k = model.coarse_basis.shape[0]
-    # Foreground: the 2x2 average's difference from the background over the threshold (cheap: coarse arrays),
-    # or, within _ABS_REACH coarse pixels of such a pixel, the 2x2 pixels' mean absolute difference (the
-    # background rebuilt at 4 pixels): across a tube a coarse pixel or two wide, its dark rims and a
-    # highlight brighter than the backdrop can cancel in the average over a few coarse pixels along it.
-    if USE_NUMBA:
-        lo, hi = _central_offsets(f)
-        mask, peak = coarse_foreground_nb(frame, f, lo, hi, rx0, ry0, rx1, ry1, model.coarse_mean.reshape(hc, wc),
-                                          model.coarse_basis.reshape(k, hc, wc), model.coarse_stack, model.coarse_threshold,
-                                          coeff.astype(np.float64), _ABS_REACH)
-        found = peak > 0.0
-    else:
-        fc = _downsample(frame[ry0 * f: ry1 * f, rx0 * f: rx1 * f], f).astype(np.float32)
-        basis = model.coarse_basis.reshape(k, hc, wc)[:, ry0:ry1, rx0:rx1]
-        res = fc - model.coarse_mean.reshape(hc, wc)[ry0:ry1, rx0:rx1] - np.tensordot(coeff[1:], basis, axes=1)
-        thr = model.coarse_threshold[ry0:ry1, rx0:rx1]
-        excess = np.abs(res) - thr
-        fg = excess > 0
-        near = cv2.dilate(fg.view(np.uint8), np.ones((2 * _ABS_REACH + 1,) * 2, np.uint8)).view(bool) & ~fg
-        if near.any():
-            abs_excess = coarse_abs_difference(model, frame, coeff, (rx0, ry0, rx1, ry1)) - thr
-            fg |= near & (abs_excess > 0)
-            excess = np.where(near, np.maximum(excess, abs_excess), excess)
-        found = bool(fg.any())
-        peak = float(excess.max()) if excess.size else 0.0
-        mask = fg.view(np.uint8).copy()
-    return mask, found, peak
+    lo, hi = _central_offsets(f)
+    mask, peak = coarse_foreground_nb(frame, f, lo, hi, rx0, ry0, rx1, ry1, model.coarse_mean.reshape(hc, wc),
+                                      model.coarse_basis.reshape(k, hc, wc), model.coarse_stack, model.coarse_threshold,
+                                      coeff.astype(np.float64), _ABS_REACH)
+    return mask, peak > 0.0, peak
 
 
 def _traced_path(mask: np.ndarray, rect: tuple, origin: tuple, coarse_shape: tuple, base: tuple,
@@ -636,10 +685,7 @@ def _traced_path(mask: np.ndarray, rect: tuple, origin: tuple, coarse_shape: tup
         g = 2
     ry, rx = np.nonzero(pooled)
     k0 = int(np.argmin(((rx + 0.5) * g + x0p - 0.5 - bx) ** 2 + ((ry + 0.5) * g + y0p - 0.5 - by) ** 2))
-    if USE_NUMBA:
-        path = bfs_path_nb(np.ascontiguousarray(pooled, dtype=np.uint8), int(ry[k0]), int(rx[k0]))
-    else:
-        path = _geodesic_path(pooled.astype(bool), (int(ry[k0]), int(rx[k0])))
+    path = bfs_path_nb(np.ascontiguousarray(pooled, dtype=np.uint8), int(ry[k0]), int(rx[k0]))
     return path, g, region, x0p, y0p
 
 
@@ -662,9 +708,31 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
                 base_search_px: float = 24.0, min_region: int = 8) -> CoarseResult:
     """Coarse stage: background coefficients, robot region at the base, ordered path.
 
-    ``roi`` = ``(x0, y0, x1, y1)`` in coarse pixels restricts the search for
-    the robot (e.g. around the previous frame's); when the robot's region
-    reaches the ROI's edge the whole frame is searched instead.
+    Parameters
+    ----------
+    model : ViewModel
+        The view's constants.
+    frame : (H, W) uint8 array
+        The frame (gray levels).
+    roi : (x0, y0, x1, y1) or None, optional
+        Coarse pixels to search for the robot in (e.g. around the previous
+        frame's); when nothing is found there, or the robot's region reaches
+        the ROI's edge, the whole frame is searched instead.
+    border_margin_px : int, optional
+        The robot's visible end within this many coarse px of the image
+        border is partly out of view.
+    base_search_px : float, optional
+        The robot's region must come within this distance (full-resolution
+        px) of the projected base, or of where the insertion axis enters the
+        image (:attr:`ViewModel.start_px`).
+    min_region : int, optional
+        Smallest robot region (coarse px).
+
+    Returns
+    -------
+    CoarseResult
+        Coefficients, and the path in full-resolution pixel coordinates
+        (image frame, px).
 
     Raises
     ------
@@ -675,6 +743,47 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
     f = model.factor
     hc, wc = model.coarse_shape
     coeff = frame_coefficients(model, frame)
+    (bx, by), bwin, box = _search_boxes(model, roi, base_search_px)
+    rx0, ry0, rx1, ry1 = box
+    mask, found, peak = _coarse_foreground(model, frame, coeff, box)
+    if not found:
+        if roi is not None:
+            return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)
+        raise FrameError(f"no silhouette (no coarse pixel above its threshold, closest by {-peak:.1f} gray levels)", model.name)
+    area, rect, (bx, by) = _robot_region(model, mask, (bx - rx0, by - ry0), bwin, box, min_region, roi is None)
+    if area < min_region:
+        if roi is not None:
+            return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)
+        n_lab, _, stats, _ = cv2.connectedComponentsWithStats((mask > 0).view(np.uint8), connectivity=8)
+        biggest = int(stats[1:, cv2.CC_STAT_AREA].max()) if n_lab > 1 else 0
+        raise FrameError(f"no robot at its base (largest foreground region, {biggest * f * f} px, is elsewhere)", model.name)
+    sx, sy, sw, sh = (int(v) for v in rect)
+    hr, wr = ry1 - ry0, rx1 - rx0
+    if roi is not None and (sx == 0 and rx0 > 0 or sy == 0 and ry0 > 0 or sx + sw == wr and rx1 < wc or sy + sh == hr and ry1 < hc):
+        return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)  # outgrew the ROI
+    sx, sy = sx + rx0, sy + ry0
+    ahead = None
+    if model.start_px is None or np.allclose(model.start_px, model.base_px):
+        # The base in view: the path runs forward from it. Behind it by more than a tube diameter and 2 coarse
+        # px lies only what joined the region there (the actuation unit's outline flickering with jitter:
+        # wide-2-16 frame 1 followed it 300 px away from the tube).
+        ahead = (model.axis_px, max(3.0, 2.0 * model.outer_radius_px / f + 2.0))
+    path, g, region, x0p, y0p = _traced_path(mask, (sx, sy, sw, sh), (rx0, ry0), (hc, wc), (bx + rx0, by + ry0), ahead)
+    _check_end_in_view(model, path, g, region, (x0p, y0p), border_margin_px)
+    path_px = ((path[:, ::-1].astype(np.float64) + 0.5) * g + [x0p, y0p]) * f - 0.5
+    bbox = (sx * f, sy * f, (sx + sw) * f, (sy + sh) * f)
+    return CoarseResult(coeff, path_px, bbox, area, (sx, sy, sx + sw, sy + sh))
+
+
+def _search_boxes(model: ViewModel, roi, base_search_px: float) -> tuple:
+    """Where :func:`coarse_path` looks (coarse px): ``((bx, by), bwin, box)``, the start (the projected base, or
+    where the insertion axis enters the image), the window around it the robot's region must reach, and the
+    box searched for foreground (``roi`` grown to hold that window; the whole image without one).
+
+    Raises :class:`~recon.errors.FrameError` when the window lies outside the image.
+    """
+    f = model.factor
+    hc, wc = model.coarse_shape
     start = model.base_px if model.start_px is None else model.start_px
     bx, by = (start + 0.5) / f - 0.5
     rad = max(2, int(np.ceil((base_search_px + min(model.start_search_px, 8.0 * base_search_px)) / f)))
@@ -683,20 +792,28 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
     if bwin[0] >= bwin[2] or bwin[1] >= bwin[3]:
         raise FrameError("neither the robot's base nor its insertion axis projects into the image (check the calibration)", model.name)
     if roi is None:
-        rx0, ry0, rx1, ry1 = 0, 0, wc, hc
-    else:
-        rx0, ry0 = max(0, min(int(roi[0]), bwin[0])), max(0, min(int(roi[1]), bwin[1]))
-        rx1, ry1 = min(wc, max(int(roi[2]), bwin[2])), min(hc, max(int(roi[3]), bwin[3]))
-    hr, wr = ry1 - ry0, rx1 - rx0
-    mask, found, peak = _coarse_foreground(model, frame, coeff, (rx0, ry0, rx1, ry1))
-    if not found:
-        if roi is not None:
-            return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)
-        raise FrameError(f"no silhouette (no coarse pixel above its threshold, closest by {-peak:.1f} gray levels)", model.name)
-    # The robot's region: flood-filled from the foreground pixel nearest to the projected base.
-    bx, by = bx - rx0, by - ry0
-    x0, y0, x1, y1 = bwin[0] - rx0, bwin[1] - ry0, bwin[2] - rx0, bwin[3] - ry0
+        return (bx, by), bwin, (0, 0, wc, hc)
+    rx0, ry0 = max(0, min(int(roi[0]), bwin[0])), max(0, min(int(roi[1]), bwin[1]))
+    rx1, ry1 = min(wc, max(int(roi[2]), bwin[2])), min(hc, max(int(roi[3]), bwin[3]))
+    return (bx, by), bwin, (rx0, ry0, rx1, ry1)
 
+
+def _robot_region(model: ViewModel, mask: np.ndarray, start: tuple, bwin: tuple, box: tuple, min_region: int,
+                  whole_frame: bool) -> tuple:
+    """Flood-fill (value 2, in place) the robot's region in the foreground ``mask`` of ``box``: the region of
+    one of the 8 foreground pixels of ``bwin`` nearest to ``start`` (coarse px, relative to ``box``) that
+    reaches ``min_region`` pixels, else the largest of them.
+
+    With the base out of view and nothing of ``min_region`` pixels where its straight insertion axis enters
+    (``whole_frame`` searches only), a robot bent before the border enters elsewhere: the region crossing the
+    border nearest to the base is taken, and its border pixel becomes the start.
+
+    Returns ``(area, rect, start)``: coarse pixels, ``(x, y, w, h)`` relative to ``box`` (None: nothing
+    filled), and the start.
+    """
+    rx0, ry0 = box[0], box[1]
+    bx, by = start
+    x0, y0, x1, y1 = bwin[0] - rx0, bwin[1] - ry0, bwin[2] - rx0, bwin[3] - ry0
     wy, wx = np.nonzero(mask[y0:y1, x0:x1])
     area, rect = 0, None
     for k in np.argsort((wx + x0 - bx) ** 2 + (wy + y0 - by) ** 2)[:8]:
@@ -708,34 +825,26 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
             area, rect = a, rc
         if a >= min_region:
             break
-    if area < min_region and roi is None and model.start_px is not None:
-        # The base is out of view and nothing enters where its straight insertion axis does: a robot bent
-        # before the border enters elsewhere. Take the region crossing the border nearest to the base.
-        seed = _border_seed(mask, (model.base_px + 0.5) / f - 0.5, min_region)
+    if area < min_region and whole_frame and model.start_px is not None:
+        seed = _border_seed(mask, (model.base_px + 0.5) / model.factor - 0.5, min_region)
         if seed is not None:
             area, _, _, rect = cv2.floodFill(mask, None, seed, 2, 0, 0, 8)
             bx, by = float(seed[0]), float(seed[1])
-    if area < min_region:
-        if roi is not None:
-            return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)
-        n_lab, _, stats, _ = cv2.connectedComponentsWithStats((mask > 0).view(np.uint8), connectivity=8)
-        biggest = int(stats[1:, cv2.CC_STAT_AREA].max()) if n_lab > 1 else 0
-        raise FrameError(f"no robot at its base (largest foreground region, {biggest * f * f} px, is elsewhere)", model.name)
-    sx, sy, sw, sh = (int(v) for v in rect)
-    if roi is not None and (sx == 0 and rx0 > 0 or sy == 0 and ry0 > 0 or sx + sw == wr and rx1 < wc or sy + sh == hr and ry1 < hc):
-        return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)  # outgrew the ROI
-    sx, sy = sx + rx0, sy + ry0
-    ahead = None
-    if model.start_px is None or np.allclose(model.start_px, model.base_px):
-        # The base in view: the path runs forward from it. Behind it by more than a tube diameter and 2 coarse
-        # px lies only what joined the region there (the actuation unit's outline flickering with jitter:
-        # wide-2-16 frame 1 followed it 300 px away from the tube).
-        ahead = (model.axis_px, max(3.0, 2.0 * model.outer_radius_px / f + 2.0))
-    path, g, region, x0p, y0p = _traced_path(mask, (sx, sy, sw, sh), (rx0, ry0), (hc, wc), (bx + rx0, by + ry0), ahead)
-    # Out of view when the far end of the path (the robot's visible end) is at the image border. Only the
-    # end counts: static edges flickering with camera jitter can join the region near the base and run to
-    # the border (the actuation unit's outline, when few background frames teach the threshold), which
-    # says nothing about the robot. (The fine stage checks again where it follows the tube past the path.)
+    return area, rect, (bx, by)
+
+
+def _check_end_in_view(model: ViewModel, path: np.ndarray, g: int, region: np.ndarray, origin: tuple,
+                       border_margin_px: int) -> None:
+    """Raise :class:`~recon.errors.FrameError` when the far end of the traced ``path`` (pooled ``g`` x ``g``,
+    :func:`_traced_path`; ``region`` from ``origin`` = (x0p, y0p) coarse px) is within ``border_margin_px``
+    coarse px of the image border.
+
+    Only the end counts: static edges flickering with camera jitter can join the region near the base and
+    run to the border (the actuation unit's outline, when few background frames teach the threshold), which
+    says nothing about the robot. (The fine stage checks again where it follows the tube past the path.)
+    """
+    hc, wc = model.coarse_shape
+    x0p, y0p = origin
     ey, ex = int(path[-1, 0]) * g, int(path[-1, 1]) * g
     cy, cx = np.nonzero(region[ey: ey + g, ex: ex + g])
     cy, cx = cy + ey + y0p, cx + ex + x0p
@@ -743,9 +852,6 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
                                                       cx.max() >= wc - border_margin_px, cy.max() >= hc - border_margin_px)) if hit]
     if touched:
         raise FrameError(f"robot partly out of view (its silhouette reaches the {' and '.join(touched)} image border)", model.name)
-    path_px = ((path[:, ::-1].astype(np.float64) + 0.5) * g + [x0p, y0p]) * f - 0.5
-    bbox = (sx * f, sy * f, (sx + sw) * f, (sy + sh) * f)
-    return CoarseResult(coeff, path_px, bbox, area, (sx, sy, sx + sw, sy + sh))
 
 
 # ----------------------------------------------------------------------------- fine stage
@@ -761,53 +867,58 @@ def _smooth_path(path: np.ndarray, window: int) -> np.ndarray:
     return out
 
 
-def _resample(path: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
-    seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    if s[-1] <= 0:
-        return path[:1], s[:1]
-    t = np.arange(0.0, s[-1] + 1e-9, step)
-    return np.stack([np.interp(t, s, path[:, 0]), np.interp(t, s, path[:, 1])], axis=1), t
+def interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """Linear interpolation of every column of ``fp`` (m, d) at ``x``: :func:`numpy.interp` per column.
 
+    Parameters
+    ----------
+    x : (n,) array
+        Where to interpolate, in the units of ``xp`` (e.g. arc length, mm or px).
+    xp : (m,) array
+        Increasing abscissae of the rows of ``fp``.
+    fp : (m, d) array
+        Values (e.g. points of a polyline, in its own frame and units).
 
-def profile_edges(d: np.ndarray, threshold: float, rims: bool = False):
-    """Sub-pixel edges of the tube on profiles ``d`` (n, L): signed differences from the background.
-
-    Returns ``(e1, e2, ok)``: edge positions in sample units (0 = first
-    sample's centre) and a validity mask. Each edge is the boundary between
-    the pixels outside and those fully inside minus the coverage of the
-    partial pixels, with the coverage of a pixel = its difference over the
-    rim contrast (largest same-signed difference among the first three
-    pixels inside). With ``rims`` the weaker rim contrast of each profile is
-    returned too.
+    Returns
+    -------
+    (n, d) float64 array
+        The rows at ``x``; beyond ``xp`` the end rows.
     """
-    n, L = d.shape
-    a = np.abs(d) > threshold
-    has = a.any(axis=1)
-    i1 = np.argmax(a, axis=1)
-    i2 = L - 1 - np.argmax(a[:, ::-1], axis=1)
-    ok = has & (i1 >= 2) & (i2 <= L - 3) & (i2 - i1 >= 1)
-    i1 = np.where(ok, i1, 2)
-    i2 = np.where(ok, i2, L - 3)
-    rows = np.arange(n)[:, None]
-    # Rim contrast: the same-signed extreme of the first 3 pixels from each edge inward.
-    in1 = d[rows, i1[:, None] + np.arange(3)]
-    in2 = d[rows, i2[:, None] - np.arange(3)]
-    s1 = np.sign(d[np.arange(n), i1])
-    s2 = np.sign(d[np.arange(n), i2])
-    rim1 = s1 * np.max(in1 * s1[:, None], axis=1)
-    rim2 = s2 * np.max(in2 * s2[:, None], axis=1)
-    ok &= (np.abs(rim1) > threshold) & (np.abs(rim2) > threshold)
-    rim1 = np.where(ok, rim1, 1.0)
-    rim2 = np.where(ok, rim2, 1.0)
-    # Partial pixels: i-1, i, i+1 on each side.
-    w1 = np.clip(d[rows, i1[:, None] + np.arange(-1, 2)] / rim1[:, None], 0.0, 1.0).sum(axis=1)
-    w2 = np.clip(d[rows, i2[:, None] - np.arange(-1, 2)] / rim2[:, None], 0.0, 1.0).sum(axis=1)
-    e1 = i1 + 1.5 - w1
-    e2 = i2 - 1.5 + w2
-    if rims:
-        return e1, e2, ok, np.where(ok, np.minimum(np.abs(rim1), np.abs(rim2)), 0.0)
-    return e1, e2, ok
+    return np.stack([np.interp(x, xp, fp[:, j]) for j in range(fp.shape[1])], axis=1)
+
+
+def resample_arc(points: np.ndarray, step: float, spread: bool = False) -> tuple:
+    """Points along a polyline by arc length (its frame and units: px for image curves, mm for backbones).
+
+    Parameters
+    ----------
+    points : (m, d) array
+        The polyline.
+    step : float
+        Arc-length step, in the units of ``points``.
+    spread : bool, optional
+        False: at ``0, step, 2 step, ...`` up to the length (the end itself
+        only when it falls on a step; a polyline of zero length gives its
+        first point). True: ``max(2, floor(length / step) + 1)`` points spread
+        evenly from the first to the last point (spacing at least ``step``;
+        two copies of the first point for zero length).
+
+    Returns
+    -------
+    points : (n, d) float64 array
+        The resampled points.
+    s : (n,) float64 array
+        Their arc length from the first point.
+    """
+    s = arc_length(points)
+    if spread:
+        n = max(2, int(np.floor(s[-1] / step)) + 1)
+        t = np.linspace(0.0, s[-1], n) if s[-1] > 0 else np.zeros(2)
+    elif s[-1] <= 0:
+        return points[:1], s[:1]
+    else:
+        t = np.arange(0.0, s[-1] + 1e-9, step)
+    return interp_rows(t, s, points), t
 
 
 @dataclass(eq=False)
@@ -821,76 +932,64 @@ class Profiles:
     ok: np.ndarray  # (n,) bool
 
 
-def _gather_profiles(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, seeds: np.ndarray, tangents: np.ndarray, half: int,
-                     nav: int = 0):
-    """Background differences on the profiles (n, 2 half + 1), each the mean of 2 nav + 1 parallel lines."""
-    H, W = model.shape
-    axis = np.abs(tangents[:, 1]) > np.abs(tangents[:, 0])  # True: tube runs vertically -> row profile
-    cu = np.rint(seeds[:, 0]).astype(np.int64)
-    cv = np.rint(seeds[:, 1]).astype(np.int64)
-    # Windows are kept inside the image; a profile whose window had to move is invalid (only the profile's
-    # own direction needs the margin: a tube entering across the border is measured up to the border).
-    cuc = np.where(axis, np.clip(cu, half, W - 1 - half), np.clip(cu, 0, W - 1))
-    cvc = np.where(axis, np.clip(cv, 0, H - 1), np.clip(cv, half, H - 1 - half))
-    full = (cuc == cu) & (cvc == cv)
-    stride = np.where(axis, 1, W)
-    acc = np.zeros((len(seeds), 2 * half + 1), np.float32)
-    cnt = np.zeros(len(seeds), np.float32)
-    nav = np.broadcast_to(np.asarray(nav, np.int64), (len(seeds),))
-    for o in range(-int(nav.max(initial=0)), int(nav.max(initial=0)) + 1):
-        ou, ov = np.where(axis, 0, o), np.where(axis, o, 0)
-        inside = (np.abs(o) <= nav) & (cuc + ou >= 0) & (cuc + ou < W) & (cvc + ov >= 0) & (cvc + ov < H)
-        idx = (np.clip(cvc + ov, 0, H - 1) * W + np.clip(cuc + ou, 0, W - 1))[:, None] + stride[:, None] * np.arange(-half, half + 1)
-        d = np.take(frame.reshape(-1), idx).astype(np.float32)
-        d -= (np.take(model.stack, idx.reshape(-1), axis=0) @ coeff).reshape(idx.shape)
-        acc += np.where(inside[:, None], d, 0.0)
-        cnt += inside
-    return acc / cnt[:, None], axis.astype(np.int8), cuc, cvc, full
-
-
 def edges_from_profiles(model: ViewModel, frame, coeff, seeds, tangents, s, half, threshold, nav: int = 0,
                         threshold1: float | None = None, strong: float = np.inf) -> Profiles:
     """Cut profiles at ``seeds`` across ``tangents`` and locate the edges on them.
 
-    With ``nav`` > 0 each profile averages ``2 nav + 1`` parallel lines along
-    the tube (noise down by their square root; the edges of a slanted tube are
-    blurred symmetrically, so the summed coverage, hence the edge, is that
-    of the middle line); ``nav`` is lowered where the tube runs slanted to
-    the lines (their edges spread by at most ~2 px). The middle line is tried
-    alone first (threshold ``threshold1``, default ``threshold``): where both
-    its rims exceed ``strong`` (gray levels) its edges are taken as they are
-    and the other lines are not cut (most of a tube well off its backdrop;
-    the averaging costs ~5x the background model's work per profile), nor
-    where none of its samples exceeds ``threshold`` (no tube there: past the
-    tip, while bridging a gap).
+    A profile runs along the pixel row (a tube running more vertically than
+    horizontally) or column through the rounded seed, ``half`` px each way;
+    each edge is the boundary between the pixels outside and those fully
+    inside minus the summed coverage of the partial pixels (a pixel's
+    difference over the rim contrast, the largest same-signed difference
+    among the first three pixels inside). With ``nav`` > 0 each profile
+    averages ``2 nav + 1`` parallel lines along the tube (noise down by their
+    square root; the edges of a slanted tube are blurred symmetrically, so the
+    summed coverage, hence the edge, is that of the middle line); ``nav`` is
+    lowered where the tube runs slanted to the lines (their edges spread by at
+    most ~2 px). The middle line is tried alone first: where both its rims
+    exceed ``strong`` its edges are taken as they are and the other lines are
+    not cut (most of a tube well off its backdrop; the averaging costs ~5x the
+    background model's work per profile), nor where none of its samples
+    exceeds ``threshold`` (no tube there: past the tip, while bridging a gap).
+    Compiled: :func:`recon._kernels.profiles_at_seeds_nb`.
+
+    Parameters
+    ----------
+    model : ViewModel
+        The view's constants.
+    frame : (H, W) uint8 array
+        The frame (gray levels).
+    coeff : (k+1,) float32 array
+        The frame's background coefficients (:func:`frame_coefficients`).
+    seeds : (n, 2) array
+        Profile centres (image frame, px).
+    tangents : (n, 2) array
+        Unit image direction of the tube at each seed.
+    s : (n,) array
+        Curve parameter of each seed (px), passed through to the result.
+    half : int
+        Half-length of the profiles (px).
+    threshold : float
+        Edge threshold of an averaged profile (gray levels).
+    nav : int, optional
+        Parallel lines averaged on each side of the middle one.
+    threshold1 : float or None, optional
+        Edge threshold of the middle line alone (gray levels); None: ``threshold``.
+    strong : float, optional
+        Rim contrast (gray levels) above which the middle line's edges are
+        taken as they are; inf: always average.
+
+    Returns
+    -------
+    Profiles
+        Centres (image frame, px), chords (px along the profile), profile
+        axes, ``s``, and validity (edges found, window not moved to stay inside
+        the image).
     """
-    if USE_NUMBA:
-        centers, chord, axis, ok = profiles_at_seeds_nb(
-            frame, model.stack, coeff, np.ascontiguousarray(seeds, np.float64), np.ascontiguousarray(tangents, np.float64),
-            int(half), float(threshold), int(nav), float(threshold if threshold1 is None else threshold1), float(strong))
-        return Profiles(centers=centers, chord=chord, axis=axis, s=s, ok=ok)
-    tangents = np.asarray(tangents, np.float64)
-    major = np.maximum(np.abs(tangents[:, 0]), np.abs(tangents[:, 1]))
-    minor = np.minimum(np.abs(tangents[:, 0]), np.abs(tangents[:, 1]))
-    nav = np.minimum(int(nav), np.floor(major / np.maximum(minor, 1e-6) + 1e-9)).astype(np.int64)
-    thr1 = float(threshold if threshold1 is None else threshold1)
-    strong = float(strong)
-    if np.isfinite(strong) and nav.max(initial=0) > 0:
-        d, axis, cu, cv, full = _gather_profiles(model, frame, coeff, seeds, tangents, half, 0)
-        e1, e2, ok, rim = profile_edges(d, thr1, rims=True)
-        # Not averaged: strong single-line edges, and profiles without one sample beyond the mean's threshold.
-        rest = np.flatnonzero(~((nav > 0) & ((ok & (rim >= strong)) | ~(np.abs(d) > threshold).any(axis=1))))
-    else:
-        d, axis, cu, cv, full = _gather_profiles(model, frame, coeff, seeds, tangents, half, nav)
-        e1, e2, ok = profile_edges(d, threshold)
-        rest = np.zeros(0, np.int64)
-    if rest.size:
-        d = _gather_profiles(model, frame, coeff, seeds[rest], tangents[rest], half, nav[rest])[0]
-        e1[rest], e2[rest], ok[rest] = profile_edges(d, threshold)
-    ok &= full
-    mid = (e1 + e2) / 2.0 - half
-    centers = np.stack([np.where(axis == 1, cu + mid, cu), np.where(axis == 1, cv, cv + mid)], axis=1).astype(np.float64)
-    return Profiles(centers=centers, chord=(e2 - e1), axis=axis, s=s, ok=ok)
+    centers, chord, axis, ok = profiles_at_seeds_nb(
+        frame, model.stack, coeff, np.ascontiguousarray(seeds, np.float64), np.ascontiguousarray(tangents, np.float64),
+        int(half), float(threshold), int(nav), float(threshold if threshold1 is None else threshold1), float(strong))
+    return Profiles(centers=centers, chord=chord, axis=axis, s=s, ok=ok)
 
 
 # ----------------------------------------------------------------------------- curve fit
@@ -899,6 +998,20 @@ class UniformSpline:
 
     Fitted by :func:`fit_curve` (penalized least squares, P-spline). Outside
     ``[s0, s1]`` the end polynomials are extrapolated.
+
+    Parameters
+    ----------
+    s0 : float
+        First knot, in the units of the curve parameter (px along a view's
+        coarse path, or the summed parameters of a matched pair).
+    h : float
+        Knot spacing (same units).
+    n_int : int
+        Knot intervals; there are ``n_int + 3`` coefficients.
+    coef : (n_int + 3, d) array
+        Coefficients, in the units and frame of the values (image px, world mm).
+    deriv : int, optional
+        0: the curve; 1: its first derivative (values per unit of ``s``).
     """
 
     def __init__(self, s0: float, h: float, n_int: int, coef: np.ndarray, deriv: int = 0):
@@ -906,6 +1019,24 @@ class UniformSpline:
 
     @staticmethod
     def basis(s: np.ndarray, s0: float, h: float, n_int: int, deriv: int = 0):
+        """The four non-zero basis functions (or their derivatives) at each ``s``.
+
+        Parameters
+        ----------
+        s : array
+            Curve parameters (units of ``s0``).
+        s0, h, n_int : float, float, int
+            The knots, as for :class:`UniformSpline`.
+        deriv : int, optional
+            0: the basis functions; 1: their first derivatives (per unit of ``s``).
+
+        Returns
+        -------
+        i : int64 array, shape of ``s``
+            Index of the first of the four coefficients each ``s`` uses.
+        b : float64 array, shape of ``s`` + (4,)
+            Their weights.
+        """
         x = (np.asarray(s, float) - s0) / h
         i = np.clip(np.floor(x), 0, n_int - 1).astype(np.int64)
         u = x - i
@@ -928,6 +1059,18 @@ class UniformSpline:
         return i, b
 
     def __call__(self, s):
+        """The curve (or its derivative) at ``s``.
+
+        Parameters
+        ----------
+        s : float or (n,) array
+            Curve parameters (units of ``s0``).
+
+        Returns
+        -------
+        (d,) or (n, d) array
+            Values, in the units and frame of ``coef``.
+        """
         scalar = np.ndim(s) == 0
         i, b = self.basis(np.atleast_1d(s), self.s0, self.h, self.n_int, self.deriv)
         c = self.coef
@@ -935,46 +1078,64 @@ class UniformSpline:
         return out[0] if scalar else out
 
     def derivative(self) -> "UniformSpline":
+        """The first derivative, ``dy/ds`` (units of ``coef`` per unit of ``s``).
+
+        Returns
+        -------
+        UniformSpline
+
+        Raises
+        ------
+        NotImplementedError
+            For the derivative of a derivative.
+        """
         if self.deriv:
             raise NotImplementedError("only the first derivative is implemented")
         return UniformSpline(self.s0, self.h, self.n_int, self.coef, deriv=1)
 
 
-def _design(s: np.ndarray, s0: float, h: float, n_int: int, deriv: int = 0) -> np.ndarray:
-    i, b = UniformSpline.basis(s, s0, h, n_int, deriv)
-    A = np.zeros((s.size, n_int + 3))
-    A[np.arange(s.size)[:, None], i[:, None] + np.arange(4)] = b
-    return A
-
-
-def fit_curve(s: np.ndarray, y: np.ndarray, spacing: float, w=None, smoothing: float = 1e-4, design: bool = False):
-    """Penalized least-squares cubic spline of ``y`` (n, d) over ``s`` with knots about ``spacing`` apart.
+def fit_curve(s: np.ndarray, y: np.ndarray, spacing: float, w=None, smoothing: float = 1e-4) -> UniformSpline:
+    """Penalized least-squares cubic spline of ``y`` over ``s`` with knots about ``spacing`` apart.
 
     A small second-difference penalty on the coefficients (relative weight
-    ``smoothing``) keeps the fit well posed across gaps in the data. With
-    ``design=True`` also returns the (n, m) design matrix, so that the fit at
-    the data is ``A @ spline.coef``.
+    ``smoothing``) keeps the fit well posed across gaps in the data. The
+    normal equations are built from the banded design, compiled
+    (:func:`recon._kernels.spline_fit_nb`).
+
+    Parameters
+    ----------
+    s : (n,) array
+        Curve parameters (any unit; the knots span ``[min s, max s]``).
+    y : (n, d) array
+        Values (their frame and units, e.g. world mm).
+    spacing : float
+        Largest knot spacing, in the units of ``s``.
+    w : (n,) array or None, optional
+        Row weights; None: all 1.
+    smoothing : float, optional
+        Weight of the penalty relative to the mean diagonal of the normal matrix.
+
+    Returns
+    -------
+    UniformSpline
+        ``y(s)``, in the frame and units of ``y``.
     """
     s = np.asarray(s, float)
     y = np.asarray(y, float)
+    w = np.ones(s.size) if w is None else np.asarray(w, float)
     s0, s1 = float(s.min()), float(s.max())
     n_int = max(1, int(np.ceil((s1 - s0) / spacing - 1e-9)))
     h = max((s1 - s0) / n_int, 1e-9)
-    m = n_int + 3
-    A = _design(s, s0, h, n_int)
-    Aw = A if w is None else A * np.asarray(w, float)[:, None]
-    AtA = Aw.T @ A
-    Aty = Aw.T @ y
-    lam = smoothing * np.trace(AtA) / m
-    coef = np.linalg.solve(AtA + lam * _penalty(m), Aty)
-    spl = UniformSpline(s0, h, n_int, coef)
-    return (spl, A) if design else spl
+    idx, b = UniformSpline.basis(s, s0, h, n_int)
+    coef = spline_fit_nb(idx, b, y, np.ones(s.size, np.bool_), w, _penalty(n_int + 3), smoothing)
+    return UniformSpline(s0, h, n_int, coef)
 
 
 _PENALTIES: dict = {}
 
 
 def _penalty(m: int) -> np.ndarray:
+    """(m, m) second-difference penalty ``D^T D`` of ``m`` spline coefficients (cached: one per knot count)."""
     P = _PENALTIES.get(m)
     if P is None:
         D = np.diff(np.eye(m), 2, axis=0)
@@ -1030,62 +1191,17 @@ class ViewCenterline:
     shift_px: np.ndarray = None
 
 
-def _bilinear_diff(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Background difference at sub-pixel points (m, 2) by bilinear interpolation; NaN outside."""
-    H, W = model.shape
-    u, v = pts[:, 0], pts[:, 1]
-    inside = (u >= 0) & (u <= W - 1) & (v >= 0) & (v <= H - 1)
-    u = np.clip(u, 0, W - 1.001)
-    v = np.clip(v, 0, H - 1.001)
-    u0 = np.floor(u).astype(np.int64)
-    v0 = np.floor(v).astype(np.int64)
-    fu = (u - u0).astype(np.float32)
-    fv = (v - v0).astype(np.float32)
-    out = np.zeros(len(pts), np.float32)
-    fr = frame.reshape(-1)
-    for du, dv, wt in ((0, 0, (1 - fu) * (1 - fv)), (1, 0, fu * (1 - fv)), (0, 1, (1 - fu) * fv), (1, 1, fu * fv)):
-        idx = (v0 + dv) * W + (u0 + du)
-        out += wt * (fr[idx].astype(np.float32) - model.stack[idx] @ coeff)
-    out[~inside] = np.nan
-    return out
-
-
 def _tip_along_axis(model, frame, coeff, p_end, t_end, radius_px, threshold, back_px=8.0, ahead_px=20.0, step=0.5):
     """Silhouette end along the axis beyond ``p_end`` (px), from lines parallel to the axis.
 
     On each line the tube's difference is roughly constant (a cylinder's
     shading varies across it, not along it), so the end is located with the
     same coverage rule as the side edges, against that line's own interior
-    contrast. The result is the median over the lines (NaN if none works).
+    contrast. The result is the median over the lines (NaN if none works;
+    :func:`recon._kernels.tip_along_axis_nb`).
     """
-    if USE_NUMBA:
-        return float(tip_along_axis_nb(frame, model.stack, coeff, np.asarray(p_end, float), np.asarray(t_end, float),
-                                       float(radius_px), float(threshold), float(back_px), float(ahead_px), float(step)))
-    n = np.array([-t_end[1], t_end[0]])
-    offsets = np.array([-0.45, -0.2, 0.0, 0.2, 0.45]) * radius_px
-    ts = np.arange(-back_px, ahead_px + 1e-9, step)
-    pts = p_end[None, None, :] + ts[None, :, None] * t_end[None, None, :] + offsets[:, None, None] * n[None, None, :]
-    d = _bilinear_diff(model, frame, coeff, pts.reshape(-1, 2)).reshape(len(offsets), len(ts))
-    n_in = int(round(2.0 / step))  # ~2 px inside the end: taken as fully covered
-    L, T = d.shape
-    ok = np.isfinite(d).all(axis=1)
-    d = np.where(np.isfinite(d), d, 0.0)
-    a = np.abs(d) > threshold
-    last = T - 1 - np.argmax(a[:, ::-1], axis=1)
-    j0 = last - n_in
-    ok &= a.any(axis=1) & (j0 >= 2) & (last <= T - 4)
-    j0 = np.where(ok, j0, 2)
-    rows = np.arange(L)[:, None]
-    ok &= np.cumsum(a, axis=1)[np.arange(L), j0] > 0.7 * (j0 + 1)
-    sgn = np.sign(d[np.arange(L), np.where(ok, last, 0)])
-    inside = d[rows, j0[:, None] - 2 + np.arange(n_in + 3)] * sgn[:, None]
-    ref = np.max(inside, axis=1)
-    ok &= ref > threshold
-    if not ok.any():
-        return np.nan
-    cov = np.clip(d[rows, np.minimum(j0[:, None] + 1 + np.arange(n_in + 4), T - 1)] * (sgn / np.where(ok, ref, 1.0))[:, None], 0.0, 1.0)
-    ends = ts[j0] + 0.5 * step + step * cov.sum(axis=1)
-    return float(np.median(ends[ok]))
+    return float(tip_along_axis_nb(frame, model.stack, coeff, np.asarray(p_end, float), np.asarray(t_end, float),
+                                   float(radius_px), float(threshold), float(back_px), float(ahead_px), float(step)))
 
 
 class _Lap:
@@ -1114,12 +1230,6 @@ def _tangents(p: np.ndarray) -> np.ndarray:
     return _unit_rows(np.gradient(p, axis=0))
 
 
-def _slant(spl, s, axis) -> np.ndarray:
-    """|cos| between a profile's axis and the tube's normal: chord -> width."""
-    d = _unit_rows(spl.derivative()(s))
-    return np.where(axis == 1, np.abs(d[:, 1]), np.abs(d[:, 0]))
-
-
 def _reparameterize(prof, seeds, tang):
     """Curve parameter of each centre: its seed's plus the centre's offset along the path, sorted.
 
@@ -1132,7 +1242,11 @@ def _reparameterize(prof, seeds, tang):
 
 
 class _Fitter:
-    """Penalized cubic spline fits of several data sets over the same abscissae ``s``."""
+    """Penalized cubic spline fits of several data sets over the same increasing abscissae ``s``.
+
+    One knot layout over all of them: the banded design (basis weights and
+    their derivatives at ``s``) is built once, and every fit is a small solve.
+    """
 
     def __init__(self, s: np.ndarray, spacing: float, smoothing: float = 1e-4):
         s0, s1 = float(s[0]), float(s[-1])
@@ -1140,39 +1254,23 @@ class _Fitter:
         self.s0, self.h = s0, max((s1 - s0) / self.n_int, 1e-9)
         self.P = _penalty(self.n_int + 3)
         self.smoothing = smoothing
-        if USE_NUMBA:
-            self.idx, self.b = UniformSpline.basis(s, self.s0, self.h, self.n_int)
-            _, self.db = UniformSpline.basis(s, self.s0, self.h, self.n_int, 1)
-        else:
-            self.A = _design(s, self.s0, self.h, self.n_int)
-            self.dA = _design(s, self.s0, self.h, self.n_int, 1)
-
-    def fit(self, y: np.ndarray, ok: np.ndarray) -> np.ndarray:
-        A = self.A[ok]
-        AtA = A.T @ A
-        lam = self.smoothing * np.trace(AtA) / AtA.shape[0]
-        return np.linalg.solve(AtA + lam * self.P, A.T @ y[ok])
+        self.idx, self.b = UniformSpline.basis(s, self.s0, self.h, self.n_int)
+        _, self.db = UniformSpline.basis(s, self.s0, self.h, self.n_int, 1)
 
     def robust(self, y, ok, min_px, n_sigma):
-        """Fit, reject points off the fit by more than max(n_sigma MAD, min_px), refit."""
-        if USE_NUMBA:
-            return spline_robust_nb(self.idx, self.b, y, ok, self.P, self.smoothing, float(min_px), float(n_sigma))
-        coef = self.fit(y, ok)
-        r = y - self.A @ coef
-        res = np.hypot(r[:, 0], r[:, 1])
-        mad = 1.4826 * float(np.median(res[ok])) + 1e-3
-        new_ok = ok & (res < max(n_sigma * mad, min_px))
-        if new_ok.sum() != ok.sum() and new_ok.sum() >= 4:
-            coef = self.fit(y, new_ok)
-        return coef, new_ok
+        """Fit, reject points off the fit by more than max(n_sigma MAD, min_px), refit: ``(coef, new ok)``."""
+        return spline_robust_nb(self.idx, self.b, y, ok, self.P, self.smoothing, float(min_px), float(n_sigma))
 
     def values(self, coef) -> np.ndarray:
-        return spline_eval_nb(self.idx, self.b, coef) if USE_NUMBA else self.A @ coef
+        """The fit at every ``s``."""
+        return spline_eval_nb(self.idx, self.b, coef)
 
     def derivatives(self, coef) -> np.ndarray:
-        return spline_eval_nb(self.idx, self.db, coef) if USE_NUMBA else self.dA @ coef
+        """The fit's derivative at every ``s``."""
+        return spline_eval_nb(self.idx, self.db, coef)
 
     def spline(self, coef) -> UniformSpline:
+        """The fit as a :class:`UniformSpline`."""
         return UniformSpline(self.s0, self.h, self.n_int, coef)
 
 
@@ -1208,10 +1306,7 @@ def _near(points_px, visited_px, radius_px: float) -> np.ndarray:
     """(n,) bool: which of ``points_px`` (n, 2) lie within ``radius_px`` of one of ``visited_px`` (m, 2)."""
     if len(visited_px) == 0 or len(points_px) == 0:
         return np.zeros(len(points_px), bool)
-    if USE_NUMBA:
-        return near_any_nb(np.ascontiguousarray(points_px, np.float64), np.ascontiguousarray(visited_px, np.float64), float(radius_px))
-    d2 = ((np.asarray(points_px)[:, None, :] - np.asarray(visited_px)[None, :, :]) ** 2).sum(axis=2)
-    return d2.min(axis=1) < radius_px ** 2
+    return near_any_nb(np.ascontiguousarray(points_px, np.float64), np.ascontiguousarray(visited_px, np.float64), float(radius_px))
 
 
 def _energy_hits(model, frame, coeff, seeds, t, half, nav, threshold, width_px, max_off):
@@ -1225,39 +1320,19 @@ def _energy_hits(model, frame, coeff, seeds, t, half, nav, threshold, width_px, 
     per seed) of the seed; a profile finds the tube where that mean exceeds
     half the edge ``threshold`` (gray levels) and twice the profile's
     median: a ridge, where the residual of a textured backdrop is broad. The
-    centre is the window's centroid of the absolute difference.
+    centre is the window's centroid of the absolute difference
+    (:func:`recon._kernels.ridge_hits_nb`).
 
     Returns ``(found, centres)``: (n,) bool and (n, 2) px.
     """
     tangents = np.ascontiguousarray(np.broadcast_to(t, seeds.shape), np.float64)
-    if USE_NUMBA:
-        d = np.abs(profile_values_nb(frame, model.stack, coeff, np.ascontiguousarray(seeds, np.float64), tangents, int(half), int(nav)))
-    else:
-        major, minor = max(abs(t[0]), abs(t[1])), max(min(abs(t[0]), abs(t[1])), 1e-6)
-        d = np.abs(_gather_profiles(model, frame, coeff, seeds, tangents, half, min(int(nav), int(np.floor(major / minor + 1e-9))))[0])
+    d = np.abs(profile_values_nb(frame, model.stack, coeff, np.ascontiguousarray(seeds, np.float64), tangents, int(half), int(nav)))
     n, L = d.shape
     w = int(np.clip(np.rint(width_px), 2, L - 2))
     centres = np.rint(seeds).astype(np.float64)
-    axis = 1 if abs(t[0]) >= abs(t[1]) else 0  # profiles run along a pixel axis (see _gather_profiles)
-    if USE_NUMBA:
-        found, off = ridge_hits_nb(np.ascontiguousarray(d, np.float64), w, np.ascontiguousarray(np.broadcast_to(max_off, (n,)), np.float64),
-                                   float(half), float(threshold))
-        centres[:, axis] += off
-        return found, centres
-    c = np.cumsum(np.pad(d, ((0, 0), (1, 0))), axis=1)
-    mean = (c[:, w:] - c[:, :-w]) / w  # window j .. j + w - 1
-    mid = np.arange(mean.shape[1]) + 0.5 * (w - 1) - half  # window centre's offset from the seed (px)
-    mean = np.where(np.abs(mid)[None, :] <= np.asarray(max_off)[:, None], mean, -np.inf)
-    j = np.argmax(mean, axis=1)
-    # A tube is a ridge: its window stands out from the rest of the profile (the residual of a textured
-    # backdrop is broad), by half the edge threshold and by twice the profile's typical level.
-    level = np.median(d, axis=1)
-    peak = mean[np.arange(n), j]
-    found = (peak - level > 0.5 * threshold) & (peak > 2.0 * level)
-    cols = j[:, None] + np.arange(-1, w + 1)
-    cols = np.clip(cols, 0, L - 1)
-    wt = d[np.arange(n)[:, None], cols]
-    off = (wt * cols).sum(axis=1) / np.maximum(wt.sum(axis=1), 1e-9) - half
+    axis = 1 if abs(t[0]) >= abs(t[1]) else 0  # profiles run along a pixel axis (see edges_from_profiles)
+    found, off = ridge_hits_nb(np.ascontiguousarray(d, np.float64), w, np.ascontiguousarray(np.broadcast_to(max_off, (n,)), np.float64),
+                               float(half), float(threshold))
     centres[:, axis] += off
     return found, centres
 
@@ -1401,27 +1476,8 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
         hit = pr.ok & (width > wmin) & (width < wmax) & (np.abs(off) < max_off)
         if energy and tr.widths and not hit.all():
             _add_ridge_hits(model, frame, coeff, seeds, t, half, nav, threshold, tr.wref(), max_off, tr.last_hit, seen, pr, width, hit)
-        s_c = s + k + (pr.centers - seeds) @ t
-        stop = confirmed = False
-        # At the border when the prediction itself nearly leaves the image: a tip a few px inside it is in
-        # view (profiles there keep their windows inside the image, recon._kernels._windows).
-        border = ((seeds[:, 0] < edge) | (seeds[:, 1] < edge) | (seeds[:, 0] > W - 1 - edge) | (seeds[:, 1] > H - 1 - edge)).tolist()
-        hit, width_l = hit.tolist(), width.tolist()
-        for i in range(nb):
-            if border[i]:
-                if tr.on_tube:
-                    raise _border_error(model, seeds[i], int(edge))
-                stop = True
-                break
-            if hit[i] and tr.misses >= 2 and tr.widths and not 0.5 * tr.wref() < width_l[i] < 1.35 * tr.wref():
-                hit[i] = False
-            if hit[i]:
-                confirmed = tr.take((pr.centers[i], pr.chord[i], pr.axis[i], s_c[i], width_l[i]))
-                if confirmed:
-                    break  # re-predict the axis from the centres beyond the gap
-            elif tr.miss():
-                stop = True
-                break
+        hit = hit.tolist()
+        stop, confirmed = _count_batch(tr, model, seeds, pr, s + k + (pr.centers - seeds) @ t, hit, width.tolist(), edge)
         if stop:
             break
         grow = min(4, 2 * grow) if (not confirmed and tr.misses == 0 and all(hit)) else 1
@@ -1439,6 +1495,39 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
     return Profiles(centers=np.array([f[0] for f in found]), chord=np.array([f[1] for f in found]),
                     axis=np.array([f[2] for f in found], np.int8), s=np.array([f[3] for f in found]),
                     ok=np.ones(len(found), bool))
+
+
+def _count_batch(tr: _Track, model: ViewModel, seeds: np.ndarray, pr: Profiles, s_c: np.ndarray, hit: list,
+                 width: list, edge: float) -> tuple:
+    """Count a batch of :func:`_follow_tube`'s profiles into ``tr``, in order along the tube.
+
+    ``seeds`` (n, 2) px, their profiles ``pr``, the centres' curve parameters
+    ``s_c`` (px), which found the tube (``hit``, a list: a hit beyond a gap
+    whose ``width`` (px) is not the tube's so far becomes a miss, in place).
+    Returns ``(stop, confirmed)``: the tube ends here (a run of misses, or
+    the border after one), or a hit confirmed the tube beyond a gap (the
+    rest of the batch is not counted: the axis is predicted again).
+
+    Raises :class:`~recon.errors.FrameError` when the prediction reaches
+    within ``edge`` px of the image border while on the tube.
+    """
+    H, W = model.shape
+    # At the border when the prediction itself nearly leaves the image: a tip a few px inside it is in
+    # view (profiles there keep their windows inside the image, recon._kernels._windows).
+    border = ((seeds[:, 0] < edge) | (seeds[:, 1] < edge) | (seeds[:, 0] > W - 1 - edge) | (seeds[:, 1] > H - 1 - edge)).tolist()
+    for i in range(len(hit)):
+        if border[i]:
+            if tr.on_tube:
+                raise _border_error(model, seeds[i], int(edge))
+            return True, False
+        if hit[i] and tr.misses >= 2 and tr.widths and not 0.5 * tr.wref() < width[i] < 1.35 * tr.wref():
+            hit[i] = False
+        if hit[i]:
+            if tr.take((pr.centers[i], pr.chord[i], pr.axis[i], s_c[i], width[i])):
+                return False, True  # re-predict the axis from the centres beyond the gap
+        elif tr.miss():
+            return True, False
+    return False, False
 
 
 #: Rounds of following the tube and locating its tip in :func:`extract_view` (each round goes on from a
@@ -1500,11 +1589,11 @@ def _edge_limits(model: ViewModel, params) -> tuple:
     which a single line's edges are taken as they are.
     """
     rmax = model.outer_radius_px * params.max_width_fraction
-    nav = int(getattr(params, "profile_half_lines", 0))
+    nav = int(params.profile_half_lines)
     thr = max(params.edge_threshold_sigma * model.sigma_fine / np.sqrt(2 * nav + 1), params.edge_min_dn)
     thr_px = max(params.edge_threshold_sigma * model.sigma_fine, params.edge_min_dn)  # one line, no averaging: the tip
     wmin = 2.0 * model.inner_radius_px * params.min_width_fraction
-    strong = float(getattr(params, "single_line_rim_factor", np.inf)) * thr_px
+    strong = float(params.single_line_rim_factor) * thr_px
     return rmax, nav, thr, thr_px, wmin, 2.0 * rmax, strong
 
 
@@ -1534,14 +1623,14 @@ def _follow_options(model: ViewModel, params, visited: np.ndarray, follow_min_dn
     """:func:`_follow_tube`'s keyword arguments for a view (see :func:`extract_view` for the second tries'
     ``follow_min_dn`` and ``bridge_gaps``); ``visited`` (m, 2) px: the centres found so far."""
     rmax, nav, thr, thr_px, wmin, wmax, strong = _edge_limits(model, params)
-    gap_px = 2.0 * model.outer_radius_px * getattr(params, "follow_gap_diameters", 0.0) if bridge_gaps else 0.0
+    gap_px = 2.0 * model.outer_radius_px * params.follow_gap_diameters if bridge_gaps else 0.0
     if follow_min_dn is not None:
         # More sensitive; callers then bridge no gaps: at this threshold a stretch of backdrop texture beyond
         # a gap passes for a tube often enough (seen: two hits 50 px on, 20 px off the tube).
         _, _, thr, thr_px, *_ = _edge_limits(model, replace(params, edge_min_dn=min(follow_min_dn, params.edge_min_dn)))
     return dict(half=int(np.ceil(rmax * 1.45 + 4)), threshold=thr, wmin=wmin, wmax=wmax, step=params.profile_step_px,
                 tolerance=model.inner_radius_px, max_gap_px=gap_px, nav=nav, threshold1=thr_px, strong=strong,
-                energy=bool(getattr(params, "follow_energy", False)), visited=visited)
+                energy=bool(params.follow_energy), visited=visited)
 
 
 def _follow_rounds(model, frame, coeff, prof, fit: _Fit, follow: dict, params, widths, lap) -> float:
@@ -1587,37 +1676,18 @@ def _follow_rounds(model, frame, coeff, prof, fit: _Fit, follow: dict, params, w
     return end_t
 
 
-def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings: dict | None = None,
-                 follow_min_dn: float | None = None, bridge_gaps: bool = True) -> ViewCenterline:
-    """Coarse path, fine profiles, spline, tip: the sub-pixel centerline of one view.
+def _fit_along_path(model: ViewModel, frame: np.ndarray, coarse: CoarseResult, params: ViewParams, lap) -> tuple:
+    """Profiles along the coarse path, wide enough for its error (about a pooled cell), and the robust spline
+    through their centres: ``(prof, fit, (wmin, wmax))``, the accepted widths (px) last.
 
-    ``params`` is a :class:`recon.fast.FastParams`; ``roi`` (coarse pixels)
-    narrows the search for the robot (see :func:`coarse_path`). Stage times (ms) are
-    added to ``timings`` when given (``coarse``, ``profiles``, ``fit``, ``follow``,
-    ``tip``). Second tries, when the other view's tip disagrees: ``follow_min_dn``
-    (gray levels) lowers ``params.edge_min_dn`` for following the tube beyond the
-    fitted profiles only, and ``bridge_gaps=False`` stops following at the first
-    gap (what lies beyond one may be backdrop that passes for the tube).
-
-    Raises
-    ------
-    FrameError
-        From :func:`coarse_path`, or too few valid profiles.
+    Raises :class:`~recon.errors.FrameError` with fewer than 8 valid profiles.
     """
-    lap = _Lap(timings)
-    frame = _gray_frame(model, frame)
-    coarse = coarse_path(model, frame, roi, base_search_px=params.base_search_px)
-    lap("coarse")
     f = model.factor
-    if len(coarse.path_px) < 3:
-        raise FrameError(f"robot too short in the image (~{len(coarse.path_px) * 2 * f} px)", model.name)
-    coeff = coarse.coefficients
     rmax, nav, thr, thr_px, wmin, wmax, strong = _edge_limits(model, params)
-    # Profiles along the coarse path, wide enough for its error (about a pooled cell).
-    seeds, s = _resample(_smooth_path(coarse.path_px, 3), params.profile_step_px)
+    seeds, s = resample_arc(_smooth_path(coarse.path_px, 3), params.profile_step_px)
     tang = _tangents(seeds)
     half = int(np.ceil(rmax * 1.45 + 1.5 * f + 2))
-    prof = edges_from_profiles(model, frame, coeff, seeds, tang, s, half, thr, nav, thr_px, strong)
+    prof = edges_from_profiles(model, frame, coarse.coefficients, seeds, tang, s, half, thr, nav, thr_px, strong)
     lap("profiles")
     s, c, ok = _reparameterize(prof, seeds, tang)
     ok &= (prof.chord > wmin) & (prof.chord < 1.45 * wmax)
@@ -1628,12 +1698,58 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
     if good.size < 8:
         raise FrameError(f"too few valid tube profiles ({good.size} of {len(ok)})", model.name)
     lap("fit")
+    return prof, _Fit(s, c, ok, fitter, coef, d, width), (wmin, wmax)
+
+
+def extract_view(model: ViewModel, frame: np.ndarray, params: ViewParams, roi=None, timings: dict | None = None,
+                 follow_min_dn: float | None = None, bridge_gaps: bool = True) -> ViewCenterline:
+    """Coarse path, fine profiles, spline, tip: the sub-pixel centerline of one view.
+
+    Parameters
+    ----------
+    model : ViewModel
+        The view's constants (:func:`prepare_view`).
+    frame : (H, W) or (H, W, 3) array
+        The frame (gray levels; RGB is converted, other dtypes clipped to 0-255).
+    params : ViewParams
+        The extraction's parameters (``FastParams.view`` for the fast method).
+    roi : (x0, y0, x1, y1) or None, optional
+        Coarse pixels that narrow the search for the robot (see :func:`coarse_path`).
+    timings : dict or None, optional
+        Stage times (ms) are added to it: ``coarse``, ``profiles``, ``fit``,
+        ``follow``, ``tip``.
+    follow_min_dn : float or None, optional
+        Second tries, when the other view's tip disagrees: lowers
+        ``params.edge_min_dn`` (gray levels) for following the tube beyond the
+        fitted profiles only.
+    bridge_gaps : bool, optional
+        False: following stops at the first gap (what lies beyond one may be
+        backdrop that passes for the tube).
+
+    Returns
+    -------
+    ViewCenterline
+        The curve and its points in the frame's pixel coordinates (image
+        frame, px, as measured: ``shift_px`` not subtracted).
+
+    Raises
+    ------
+    FrameError
+        A frame of the wrong size, from :func:`coarse_path`, too few valid
+        profiles, or the tip at the image border.
+    """
+    lap = _Lap(timings)
+    frame = _gray_frame(model, frame)
+    coarse = coarse_path(model, frame, roi, base_search_px=params.base_search_px)
+    lap("coarse")
+    if len(coarse.path_px) < 3:
+        raise FrameError(f"robot too short in the image (~{len(coarse.path_px) * 2 * model.factor} px)", model.name)
+    prof, fit, widths = _fit_along_path(model, frame, coarse, params, lap)
     # The coarse path can stop short of the tip (a tube only a coarse pixel or two wide can drop out of the
     # coarse mask): follow the tube's edges at full resolution beyond the last accepted centre.
-    follow = _follow_options(model, params, c[good], follow_min_dn, bridge_gaps)
-    fit = _Fit(s, c, ok, fitter, coef, d, width)
-    end_t = _follow_rounds(model, frame, coeff, prof, fit, follow, params, (wmin, wmax), lap)
-    s, c, ok, fitter, coef, d, width = fit.s, fit.c, fit.ok, fit.fitter, fit.coef, fit.d, fit.width
+    follow = _follow_options(model, params, fit.c[np.flatnonzero(fit.ok)], follow_min_dn, bridge_gaps)
+    end_t = _follow_rounds(model, frame, coarse.coefficients, prof, fit, follow, params, widths, lap)
+    s, c, ok, fitter, width = fit.s, fit.c, fit.ok, fit.fitter, fit.width
     sb, p_end, t_end, r_end = fit.end()
     if not np.isfinite(end_t):
         end_t = 0.0
@@ -1649,5 +1765,5 @@ def extract_view(model: ViewModel, frame: np.ndarray, params, roi=None, timings:
         name=model.name, curve=spl, s_range=(float(s[good[0]]), s_end), points_px=c[good], s=s[good],
         width_px=width[good], end_px=end_px, end_s=s_end, tangent_end=t_end, n_profiles=len(s),
         n_rejected=int(len(s) - good.size), coarse=coarse,
-        shift_px=frame_shift(model, frame) if getattr(params, "jitter_compensation", True) else np.zeros(2),
+        shift_px=frame_shift(model, frame) if params.jitter_compensation else np.zeros(2),
     )

@@ -4,25 +4,25 @@ Timing is not tested here (``ctr-bench bench`` measures it); only accuracy and b
 """
 from __future__ import annotations
 
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import cv2
+import fast_oracles as O
 import numpy as np
 import pytest
+import strategies as S
 
+from recon import _kernels
 from recon.camera import Camera, look_at
 from recon.epipolar import EpipolarFrame, align_dp, monotonic, triangulate_rays
 from recon.errors import FrameError
-from recon.fast import FastParams, FastReconstructor, prepare_fast
+from recon.fast import FastParams, FastReconstructor, _project, _rays, _rays_in_python, prepare_fast
 from recon.metrics import backbone_errors, point_to_polyline_distances
 from recon.methods import get_method, prepare
+from recon.params import params_from_dict
 from recon.rigcal import RigCalibration
-from recon.subpixel import coarse_abs_difference, extract_view, frame_coefficients, prepare_view, profile_edges
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import strategies as S  # noqa: E402
+from recon.subpixel import (ViewParams, _Fitter, _near, coarse_abs_difference, extract_view, fit_curve, frame_coefficients,
+                            frame_shift, prepare_view)
 
 # Frames of scenes/paper.toml: inner tube 5 mm out, 45 mm out (straight then curved), and rotated.
 FRAMES = (0, 9, 15)
@@ -249,7 +249,7 @@ def test_subpixel_centerline_of_a_drawn_tube(synthetic):
     model = prepare_fast(rig, backgrounds, params)
     for name in rig.names:
         cam = rig[name]
-        vc = extract_view(model.views[name], frames[name], params)
+        vc = extract_view(model.views[name], frames[name], params.view)
         true_uv, z = cam.project(pts)
         d = point_to_polyline_distances(vc.points_px, true_uv)
         assert np.median(d) < 0.1 and np.percentile(d, 95) < 0.2, (name, np.percentile(d, [50, 95, 100]))
@@ -260,14 +260,18 @@ def test_subpixel_centerline_of_a_drawn_tube(synthetic):
 
 
 def test_profile_edges_partial_coverage():
-    """Edges from the coverage of partial pixels: a band from 10.3 to 21.8 on a 32-sample profile."""
+    """Edges from the coverage of partial pixels: a band from 10.3 to 21.8 on a 32-sample profile (the kernel
+    and its oracle)."""
     x = np.arange(32)
     lo, hi = 10.3, 21.8
     cov = np.clip(np.minimum(x + 0.5, hi) - np.maximum(x - 0.5, lo), 0.0, 1.0)
     d = (-80.0 * cov)[None, :]
-    e1, e2, ok = profile_edges(d, 12.0)
+    e1, e2, ok = O.profile_edges(d, 12.0)
     assert ok[0]
     assert e1[0] == pytest.approx(lo, abs=1e-9) and e2[0] == pytest.approx(hi, abs=1e-9)
+    out = np.empty(3)
+    assert _kernels._edges_1d(d[0], 12.0, out)
+    assert out[0] == pytest.approx(lo, abs=1e-9) and out[1] == pytest.approx(hi, abs=1e-9) and out[2] == pytest.approx(80.0)
 
 
 def test_synthetic_robot_reconstruction(synthetic):
@@ -371,31 +375,131 @@ def test_prepare_errors(synthetic):
         prepare_fast(rig, {"side": backgrounds["side"][:3], "top": backgrounds["top"]})
     with pytest.raises(ValueError, match=r"inner_tube_radius_mm"):
         FastParams(outer_tube_radius_mm=0.5, inner_tube_radius_mm=0.8)
+    with pytest.raises(ValueError, match=r"^ViewParams.profile_step_px must be > 0, got 0.0$"):
+        FastParams(view=ViewParams(profile_step_px=0.0))
     assert prepare_view  # public helper used by the method
 
 
-def test_compiled_and_numpy_paths_agree(synthetic, monkeypatch):
-    """The numba kernels (when installed) and the NumPy code give the same centerline and backbone."""
-    import recon.subpixel as sp
+def test_view_parameters_are_a_nested_table():
+    """The per-view parameters are FastParams.view, a ``[view]`` table in a parameter file; the old flat keys are
+    unknown parameters."""
+    p = params_from_dict(FastParams, {"knot_mm": 5.0, "view": {"edge_min_dn": 6.5, "follow_energy": False}})
+    assert p.knot_mm == 5.0 and p.view.edge_min_dn == 6.5 and not p.view.follow_energy
+    assert p.view.profile_step_px == ViewParams().profile_step_px  # siblings keep their defaults
+    with pytest.raises(ValueError, match=r"^params: edge_min_dn: unknown parameter"):
+        params_from_dict(FastParams, {"edge_min_dn": 6.5})
 
-    if not sp.HAVE_NUMBA:
-        pytest.skip("numba not installed: only the NumPy path exists")
+
+def _compiled_and_oracle(monkeypatch, rig, backgrounds, frames):
+    """``(compiled, oracle)``: each the views' centerlines and the pair's reconstruction, the second with every
+    kernel swapped for its NumPy oracle (tests/fast_oracles.py)."""
+    out = []
+    for oracle in (False, True):
+        if oracle:
+            O.use_numpy_path(monkeypatch)
+        model = prepare_fast(rig, backgrounds)
+        views = {n: extract_view(model.views[n], frames[n], FastParams().view) for n in model.pair}
+        out.append((views, FastReconstructor(model)(frames)))
+    monkeypatch.undo()
+    return out
+
+
+def _assert_agree(compiled, oracle):
+    (views_a, ra), (views_b, rb) = compiled, oracle
+    for name, va in views_a.items():
+        vb = views_b[name]
+        assert va.points_px.shape == vb.points_px.shape, name
+        np.testing.assert_allclose(va.points_px, vb.points_px, atol=1e-5)
+        np.testing.assert_allclose(va.end_px, vb.end_px, atol=1e-3)
+        np.testing.assert_allclose(va.shift_px, vb.shift_px, atol=1e-3)
+    assert backbone_errors(ra.points_world_mm, rb.points_world_mm)["max_error_mm"] < 1e-3
+
+
+def test_compiled_kernels_agree_with_their_numpy_oracles(synthetic, monkeypatch):
+    """The numba kernels and the NumPy oracles give the same centerline and backbone."""
     rig, backgrounds, rng = synthetic
     s, pts, radii = _robot()
-    frames = _frames(rig, rng, pts, radii)
-    out = {}
-    for flag in (True, False):
-        monkeypatch.setattr(sp, "USE_NUMBA", flag)
-        model = prepare_fast(rig, backgrounds)
-        vc = extract_view(model.views["side"], frames["side"], FastParams())
-        r = FastReconstructor(model)(frames)
-        out[flag] = (vc, r)
-    (va, ra), (vb, rb) = out[True], out[False]
-    assert va.points_px.shape == vb.points_px.shape
-    np.testing.assert_allclose(va.points_px, vb.points_px, atol=1e-6)
-    np.testing.assert_allclose(va.end_px, vb.end_px, atol=1e-3)
-    np.testing.assert_allclose(va.shift_px, vb.shift_px, atol=1e-3)
-    assert backbone_errors(ra.points_world_mm, rb.points_world_mm)["max_error_mm"] < 1e-3
+    _assert_agree(*_compiled_and_oracle(monkeypatch, rig, backgrounds, _frames(rig, rng, pts, radii)))
+
+
+def test_frame_shift_and_coefficients_agree_with_their_oracles(paper_scene, paper_frames):
+    """Jitter and background coefficients on rendered frames (the synthetic backdrop has no texture to
+    register on)."""
+    backgrounds, shots = paper_frames
+    model = prepare_fast(paper_scene.rig, backgrounds)
+    for shot in shots:
+        for name, vm in model.views.items():
+            assert vm.shift_index is not None
+            frame = shot.images[name]
+            np.testing.assert_allclose(frame_shift(vm, frame), O.frame_shift(vm, frame), atol=1e-6)
+            np.testing.assert_allclose(frame_coefficients(vm, frame), O.frame_coefficients(vm, frame), rtol=1e-4, atol=1e-4)
+
+
+def test_edge_kernel_agrees_with_its_oracle():
+    """Random profiles (bands of either polarity, noise, none at all): the same edges, rims and refusals."""
+    rng = np.random.default_rng(11)
+    n, L = 400, 41
+    x = np.arange(L)
+    lo = rng.uniform(-4.0, 30.0, n)
+    hi = lo + rng.uniform(0.0, 14.0, n)
+    cov = np.clip(np.minimum(x + 0.5, hi[:, None]) - np.maximum(x - 0.5, lo[:, None]), 0.0, 1.0)
+    d = rng.choice([-1.0, 1.0], n)[:, None] * rng.uniform(5.0, 90.0, n)[:, None] * cov + rng.normal(0.0, 3.0, (n, L))
+    e1, e2, ok, rim = O.profile_edges(d, 12.0, rims=True)
+    out = np.empty(3)
+    for i in range(n):
+        found = _kernels._edges_1d(d[i], 12.0, out)
+        assert found == ok[i], i
+        if found:
+            np.testing.assert_allclose(out, [e1[i], e2[i], rim[i]], atol=1e-12)
+    assert 0.3 < ok.mean() < 0.95  # both outcomes are exercised
+
+
+def test_path_and_neighbour_kernels_agree_with_their_oracles():
+    """Breadth-first paths through random blobs, and which points lie near visited ones."""
+    rng = np.random.default_rng(12)
+    for _ in range(20):
+        mask = cv2.dilate((rng.random((30, 40)) > 0.93).astype(np.uint8), np.ones((3, 3), np.uint8))
+        ys, xs = np.nonzero(mask)
+        k = rng.integers(ys.size)
+        np.testing.assert_array_equal(_kernels.bfs_path_nb(mask, ys[k], xs[k]), O.bfs_path(mask, ys[k], xs[k]))
+        pts, visited = rng.uniform(0, 50, (60, 2)), rng.uniform(0, 50, (25, 2))
+        np.testing.assert_array_equal(_near(pts, visited, 4.0), O.near(pts, visited, 4.0))
+
+
+def test_spline_kernels_agree_with_their_oracles():
+    """Weighted 3D fits (the backbone's), robust 2D fits with outliers (a view's centres), values, tangents."""
+    rng = np.random.default_rng(13)
+    q = np.sort(rng.uniform(0.0, 300.0, 150))
+    X = np.stack([q, 0.01 * q ** 2, 20.0 * np.sin(q / 50.0)], axis=1) + rng.normal(0.0, 0.1, (150, 3))
+    w = rng.uniform(0.03, 1.0, 150) ** 2
+    a, b = fit_curve(q, X, 35.0, w), O.fit_curve(q, X, 35.0, w)
+    assert (a.s0, a.h, a.n_int) == (b.s0, b.h, b.n_int)
+    np.testing.assert_allclose(a.coef, b.coef, atol=1e-9)
+    s = np.linspace(0.0, 400.0, 200)
+    c = np.stack([s, 30.0 * np.cos(s / 80.0)], axis=1) + rng.normal(0.0, 0.2, (200, 2))
+    c[rng.choice(200, 12, replace=False)] += rng.normal(0.0, 8.0, (12, 2))
+    ok = rng.random(200) > 0.1
+    fa, fb = _Fitter(s, 40.0), O.Fitter(s, 40.0)
+    (ca, oka), (cb, okb) = fa.robust(c, ok, 2.0, 4.0), fb.robust(c, ok, 2.0, 4.0)
+    np.testing.assert_array_equal(oka, okb)
+    assert oka.sum() < ok.sum()  # the outliers were dropped
+    np.testing.assert_allclose(ca, cb, atol=1e-9)
+    np.testing.assert_allclose(fa.values(ca), fb.values(ca), atol=1e-9)
+    np.testing.assert_allclose(fa.derivatives(ca), fb.derivatives(ca), atol=1e-12)
+
+
+def test_ray_and_projection_kernels_agree_with_python(synthetic):
+    """Pixels to rays (undistortion, epipolar angle, conditioning) and world points to pixels, with distortion."""
+    rig, backgrounds, rng = synthetic
+    model = prepare_fast(rig, backgrounds)
+    for name in model.pair:
+        cam = rig[name]
+        uv = np.ascontiguousarray(rng.uniform([0.0, 0.0], [cam.width - 1.0, cam.height - 1.0], (300, 2)))
+        for got, want in zip(_rays(model, name, uv), _rays_in_python(model, name, uv)):
+            np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+        P = rng.uniform([0.0, -20.0, -20.0], [100.0, 20.0, 20.0], (300, 3))
+        for got, want in zip(_project(cam, P), O.project(cam, P)):
+            np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-9)
 
 
 def test_warm_up_in_prepare_leaves_no_trace(paper_scene, paper_frames):

@@ -5,21 +5,16 @@ Synthetic views (drawn tubes, no rendering), so each case takes a fraction of a 
 """
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
+from test_fast_method import _assert_agree, _compiled_and_oracle, _draw_tube, _robot
 
 from recon.camera import Camera, look_at
 from recon.errors import FrameError
 from recon.metrics import backbone_errors
 from recon.methods import prepare
 from recon.rigcal import RigCalibration
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_fast_method import _draw_tube, _robot  # noqa: E402
 
 K = np.array([[2580.0, 0.0, 511.5], [0.0, 2580.0, 383.5], [0.0, 0.0, 1.0]])
 
@@ -75,10 +70,11 @@ def _blotches(rng, mean, amplitude, sigma=25.0):
     return mean + amplitude * noise / np.abs(noise).max()
 
 
-def test_textured_backdrop_the_tube_fades_into():
+@pytest.fixture(scope="module")
+def textured():
     """A tube of one gray in front of blotches from darker to brighter than it (stretches with no contrast),
-    cameras 100 deg apart and a few degrees off their nominal mounts, lens distortion: the backbone follows
-    the tube to its tip instead of stopping where it fades, or running off along the texture."""
+    cameras 100 deg apart and a few degrees off their nominal mounts, lens distortion: ``(rig, backgrounds,
+    frames, backbone)``."""
     rng = np.random.default_rng(5)
     rig = _rig(100.0, dist=(-0.12, 0.05, 0.0, 0.0, 0.0), tilt_mm=15.0)
     textures = {n: _blotches(rng, 150.0, 70.0) for n in rig.names}  # 80-220 gray levels
@@ -91,9 +87,23 @@ def test_textured_backdrop_the_tube_fades_into():
     s, pts, radii = _robot(length=85.0, straight=40.0, bend_axis=(0.0, 0.8, 0.6))
     frames = {n: np.clip(_draw_tube(shot(n, 1.02), rig[n], pts, radii, level=85.0), 0, 255).astype(np.uint8)
               for n in rig.names}
+    return rig, backgrounds, frames, pts
+
+
+def test_textured_backdrop_the_tube_fades_into(textured):
+    """The backbone follows the tube to its tip instead of stopping where it fades, or running off along the
+    texture."""
+    rig, backgrounds, frames, pts = textured
     r = prepare("fast", rig, backgrounds)(frames)
     e = backbone_errors(r.points_world_mm, pts)
     assert _px(rig, e["mean_error_mm"]) < 1.0 and _px(rig, e["tip_error_mm"]) < 3.0, e
+
+
+def test_compiled_kernels_agree_with_their_numpy_oracles_on_texture(textured, monkeypatch):
+    """Where the tube fades into the texture it is followed past the coarse path, across gaps and by its core
+    (ridge hits): the numba kernels and the NumPy oracles still agree."""
+    rig, backgrounds, frames, _ = textured
+    _assert_agree(*_compiled_and_oracle(monkeypatch, rig, backgrounds, frames))
 
 
 def test_base_out_of_view_robot_entering_away_from_its_axis():

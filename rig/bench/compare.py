@@ -22,8 +22,9 @@ maximum, tip = median of the per-frame tip errors; a frame whose ground truth
 cannot be used is left out of them and listed under the table (``score_notes``
 in ``--json``, naming the truth file). Peak memory is the
 tracemalloc peak (Python and NumPy heap) of one more reconstruction of the
-first frame, made after the timed passes (for the fast method with its NumPy
-code: numba's allocations are invisible to tracemalloc); model memory is what
+first frame, made after the timed passes (numba's allocations are invisible to
+tracemalloc: for the fast method the arrays its compiled kernels allocate are not
+counted); model memory is what
 the prepared method keeps (background models).
 
 ``--scaling`` adds the resolution study: the scene rendered with every camera
@@ -42,7 +43,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-import recon.subpixel as sp
 from recon.carving import CarvingParams
 from recon.errors import FrameError
 from recon.methods import get_method, prepare
@@ -196,20 +196,16 @@ def run_method(name: str, data: dict, params=None, repeats: int = 3, budget_s: f
 def _peak_memory_mib(rec, frames: dict) -> float:
     """Peak memory (MiB) of one reconstruction of ``frames``, traced by tracemalloc.
 
-    numba's allocator is invisible to tracemalloc: the fast method's NumPy path is
-    measured instead (the same arrays).
+    numba's allocations are invisible to tracemalloc: for the fast method the arrays its
+    compiled kernels allocate are not counted.
     """
     if hasattr(rec, "reset"):
         rec.reset()
-    use_numba = sp.USE_NUMBA
-    sp.USE_NUMBA = False
     tracemalloc.start()
     try:
         rec(frames)
     except FrameError:
         pass
-    finally:
-        sp.USE_NUMBA = use_numba
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     return peak / 2**20

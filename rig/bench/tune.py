@@ -103,11 +103,11 @@ KNOBS = {
     "fast": (
         Knob("background.k", 1, 8, integer=True, unit="eigenbackgrounds"),
         Knob("coarse_threshold_sigma", 3.0, 12.0, unit="noise sigma", step=0.1),
-        Knob("edge_threshold_sigma", 2.0, 10.0, unit="noise sigma", step=0.1),
-        Knob("edge_min_dn", 4.0, 30.0, unit="DN", step=0.5),
-        Knob("min_width_fraction", 0.1, 0.9, unit="of the inner tube's width", step=0.01),
-        Knob("outlier_sigma", 2.0, 8.0, unit="MAD", step=0.1),
-        Knob("spline_knot_px", 15.0, 80.0, unit="px", step=1.0),
+        Knob("view.edge_threshold_sigma", 2.0, 10.0, unit="noise sigma", step=0.1),
+        Knob("view.edge_min_dn", 4.0, 30.0, unit="DN", step=0.5),
+        Knob("view.min_width_fraction", 0.1, 0.9, unit="of the inner tube's width", step=0.01),
+        Knob("view.outlier_sigma", 2.0, 8.0, unit="MAD", step=0.1),
+        Knob("view.spline_knot_px", 15.0, 80.0, unit="px", step=1.0),
         Knob("knot_mm", 2.0, 10.0, unit="mm", step=0.1),
     ),
 }
