@@ -35,7 +35,7 @@ from rig.session_checks import (
     tube_radii_mm,
 )
 
-__all__ = ["SessionWriter", "Session", "SessionError", "TruthError", "FrameRecord", "FORMAT", "VERSION", "read_image"]
+__all__ = ["SessionWriter", "Session", "SessionError", "TruthError", "FrameRecord", "FORMAT", "VERSION", "read_image", "atomic_write_bytes"]
 
 FORMAT = "ctr-bench-session"
 VERSION = 1
@@ -54,7 +54,7 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
+def atomic_write_bytes(path: Path, data: bytes) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     with open(tmp, "wb") as fh:
         fh.write(data)
@@ -140,13 +140,13 @@ class SessionWriter:
         self.frames_written = 0
 
     def _write_meta(self) -> None:
-        _atomic_write_bytes(self.dir / "session.json", (json.dumps(self.meta, indent=2) + "\n").encode())
+        atomic_write_bytes(self.dir / "session.json", (json.dumps(self.meta, indent=2) + "\n").encode())
 
     def _write_images(self, sub: str, index: int, images: dict) -> None:
         for cam in self.cameras:
             if cam not in images:
                 raise SessionError(f"frame {index}: no image from camera {cam!r}")
-            _atomic_write_bytes(self.dir / sub / cam / f"{index:06d}.png", _png_bytes(images[cam]))
+            atomic_write_bytes(self.dir / sub / cam / f"{index:06d}.png", _png_bytes(images[cam]))
 
     def add_background(self, index: int, images: dict) -> None:
         """Store robot-free frame ``index`` (one image per camera)."""
@@ -173,7 +173,7 @@ class SessionWriter:
             (self.dir / "truth").mkdir(exist_ok=True)
             buf = io.BytesIO()
             np.savez_compressed(buf, **truth)
-            _atomic_write_bytes(self.dir / "truth" / f"{index:06d}.npz", buf.getvalue())
+            atomic_write_bytes(self.dir / "truth" / f"{index:06d}.npz", buf.getvalue())
             if not self.has_truth:
                 self.has_truth = True
                 self.meta["ground_truth"] = True

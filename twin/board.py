@@ -33,8 +33,8 @@ from recon.calibration import BoardSpec
 from recon.camera import Camera, rotation_matrix
 
 from .noise import expose, frame_rng, jitter_camera
-from .scene import _POS, _REQUIRED, Scene, SceneError, _Table, load_scene, read_toml
-
+from .scene import Scene, load_scene
+from .schema import POSITIVE, REQUIRED, SceneError, Table, read_toml
 
 __all__ = [
     "CalibrationScene",
@@ -164,7 +164,7 @@ class CalibrationScene:
         return T_world_board
 
 
-def _pair(t: _Table, key, default, lo=None, hi=None):
+def _pair(t: Table, key, default, lo=None, hi=None):
     v = t.get(key, list(default), ("vec", 2))
     if v[0] > v[1]:
         t.fail(key, f"must be [min, max] with min <= max, got {v!r}")
@@ -177,11 +177,11 @@ def _pair(t: _Table, key, default, lo=None, hi=None):
 
 def calibration_scene_from_dict(data: dict, source: str = "<calibration scene>", base_dir: Path | None = None) -> CalibrationScene:
     """Validate a parsed calibration-scene TOML document; errors name the file and key."""
-    top = _Table(data, "", source)
-    top.get("format", _REQUIRED, str, lambda v: v == FORMAT, f'must be "{FORMAT}"')
+    top = Table(data, "", source)
+    top.get("format", REQUIRED, str, lambda v: v == FORMAT, f'must be "{FORMAT}"')
     top.get("version", 1, int, lambda v: v == 1, "must be 1 (the only version this ctr-bench reads)")
     name = top.get("name", Path(source).stem, str)
-    rig_name = top.get("rig_scene", _REQUIRED, str)
+    rig_name = top.get("rig_scene", REQUIRED, str)
     seed = top.get("seed", 0, int, lambda v: v >= 0, "must be >= 0")
     jitter = top.get("jitter", True, bool)
     rig_path = Path(rig_name)
@@ -195,14 +195,14 @@ def calibration_scene_from_dict(data: dict, source: str = "<calibration scene>",
         top.fail("rig_scene", f"the rig must have cameras 'side' and 'top' (missing {', '.join(sorted(missing))})")
 
     b = top.table("board", required=True)
-    cols = b.get("cols", _REQUIRED, int, lambda v: v >= 3, "must be >= 3")
-    rows = b.get("rows", _REQUIRED, int, lambda v: v >= 3, "must be >= 3")
+    cols = b.get("cols", REQUIRED, int, lambda v: v >= 3, "must be >= 3")
+    rows = b.get("rows", REQUIRED, int, lambda v: v >= 3, "must be >= 3")
     if cols == rows:
         b.fail("rows", f"must differ from cols={cols} (a square board's orientation is ambiguous)")
-    square = b.get("square_mm", _REQUIRED, float, *_POS)
+    square = b.get("square_mm", REQUIRED, float, *POSITIVE)
     look = BoardLook(
         margin_mm=b.get("margin_mm", 6.0, float, lambda v: v >= 0, "must be >= 0"),
-        thickness_mm=b.get("thickness_mm", 3.0, float, *_POS),
+        thickness_mm=b.get("thickness_mm", 3.0, float, *POSITIVE),
         black=b.get("black", 0.02, float, lambda v: 0 <= v <= 1, "must be in [0, 1]"),
         white=b.get("white", 0.45, float, lambda v: 0 <= v <= 1, "must be in [0, 1]"),
         plate_color=tuple(b.get("plate_color", [0.55, 0.56, 0.58], ("vec", 3))),

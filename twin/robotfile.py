@@ -26,7 +26,7 @@ import numpy as np
 from recon.params import dumps_toml
 
 from .robot import Robot, Tube
-from .schema import _NONNEG, _POS, _REQUIRED, _Table, read_toml
+from .schema import NONNEGATIVE, POSITIVE, REQUIRED, Table, read_toml
 
 __all__ = ["RobotFile", "parse_robot_table", "robot_from_toml", "read_robot_file", "robot_table", "robot_file_toml",
            "robot_to_dict", "robot_from_dict"]
@@ -52,15 +52,15 @@ class RobotFile:
 
 
 # ----------------------------------------------------------------------------- reading TOML
-def _parse_tube(t: _Table) -> Tube:
+def _parse_tube(t: Table) -> Tube:
     kw = dict(
-        name=t.get("name", _REQUIRED, str),
-        outer_diameter_mm=t.get("outer_diameter_mm", _REQUIRED, float, *_POS),
-        inner_diameter_mm=t.get("inner_diameter_mm", _REQUIRED, float, *_NONNEG),
-        length_mm=t.get("length_mm", _REQUIRED, float, *_POS),
-        curved_length_mm=t.get("curved_length_mm", _REQUIRED, float, *_NONNEG),
-        precurvature_per_mm=t.get("precurvature_per_mm", _REQUIRED, float, *_NONNEG),
-        youngs_modulus_gpa=t.get("youngs_modulus_gpa", 60.0, float, *_POS),
+        name=t.get("name", REQUIRED, str),
+        outer_diameter_mm=t.get("outer_diameter_mm", REQUIRED, float, *POSITIVE),
+        inner_diameter_mm=t.get("inner_diameter_mm", REQUIRED, float, *NONNEGATIVE),
+        length_mm=t.get("length_mm", REQUIRED, float, *POSITIVE),
+        curved_length_mm=t.get("curved_length_mm", REQUIRED, float, *NONNEGATIVE),
+        precurvature_per_mm=t.get("precurvature_per_mm", REQUIRED, float, *NONNEGATIVE),
+        youngs_modulus_gpa=t.get("youngs_modulus_gpa", 60.0, float, *POSITIVE),
         poisson_ratio=t.get("poisson_ratio", 0.33, float, lambda v: -1 < v < 0.5, "must be in (-1, 0.5)"),
     )
     if kw["inner_diameter_mm"] >= kw["outer_diameter_mm"]:
@@ -85,12 +85,12 @@ def _base_transform(position, insertion_axis, bend_axis) -> np.ndarray:
     return T
 
 
-def parse_robot_table(r: _Table, source: str) -> tuple:
+def parse_robot_table(r: Table, source: str) -> tuple:
     """The robot of a checked ``[robot]`` table.
 
     Parameters
     ----------
-    r : _Table
+    r : Table
         The ``[robot]`` table (:mod:`twin.schema`); every key is checked, unknown keys are errors.
     source : str
         The file, for messages.
@@ -138,7 +138,7 @@ def robot_from_toml(data: dict, source: str) -> tuple:
     SceneError
         One line naming ``source`` and the key.
     """
-    robot, model, _, _ = parse_robot_table(_Table(data, "", source).table("robot", required=True), source)
+    robot, model, _, _ = parse_robot_table(Table(data, "", source).table("robot", required=True), source)
     return robot, model
 
 
@@ -159,7 +159,7 @@ def read_robot_file(path) -> RobotFile:
         One line naming the file (missing, unreadable, not TOML) and the key (unknown, wrong).
     """
     source = str(path)
-    top = _Table(read_toml(path, "robot file"), "", source)
+    top = Table(read_toml(path, "robot file"), "", source)
     robot, model, _, _ = parse_robot_table(top.table("robot", required=True), source)
     act = top.table("actuator")
     n = robot.n_tubes

@@ -20,8 +20,8 @@ from recon.rigcal import RigCalibration
 
 from .robot import Joints, Robot
 from .robotfile import parse_robot_table
-# SceneError, _Table and read_toml are this module's names too: twin.board and rig/ import them from here.
-from .schema import _NONNEG, _POS, _REQUIRED, SceneError, _Table, read_toml
+# SceneError and read_toml are this module's names too (its users read scenes); the table helpers are imported from twin.schema.
+from .schema import NONNEGATIVE, POSITIVE, REQUIRED, SceneError, Table, read_toml
 
 
 __all__ = ["Scene", "SceneError", "load_scene", "check_scene_cameras", "read_toml", "scene_from_dict", "NoiseModel",
@@ -211,10 +211,10 @@ def _orbited_mount(name: str, target: np.ndarray, distance_mm: float, orbit_deg)
     return target + distance_mm * (R @ back), R @ down
 
 
-def _parse_rig(g: _Table, width: int, height: int, base, axis) -> RigCalibration:
+def _parse_rig(g: Table, width: int, height: int, base, axis) -> RigCalibration:
     distance = g.get("distance_mm", 300.0, float, *_AWAY)
-    focal = g.get("focal_length_mm", 12.0, float, *_POS)
-    pixel = g.get("pixel_size_um", 4.65, float, *_POS)
+    focal = g.get("focal_length_mm", 12.0, float, *POSITIVE)
+    pixel = g.get("pixel_size_um", 4.65, float, *POSITIVE)
     target = np.asarray(g.get("target_mm", [45.0, 0.0, 0.0], ("vec", 3)))
     dist_default = g.get("distortion", [0.0] * 5, ("vec", None), _opencv_count, _OPENCV_COUNTS)
     # Nominal orthogonal mounts: the top camera looks down (-z) with image-down = world -y;
@@ -228,14 +228,14 @@ def _parse_rig(g: _Table, width: int, height: int, base, axis) -> RigCalibration
         c = g.table(name)
         cam_distance = c.get("distance_mm", distance, float, *_AWAY)
         orbit = c.get("orbit_deg", [0.0, 0.0, 0.0], ("vec", 3), lambda v: all(abs(a) <= 180 for a in v), "must be within [-180, 180] deg")
-        cam_focal = c.get("focal_length_mm", focal, float, *_POS)
+        cam_focal = c.get("focal_length_mm", focal, float, *POSITIVE)
         if cam_distance != distance or any(orbit):
             eye, down = _orbited_mount(name, target, cam_distance, orbit)
         rot = c.get("rotation_deg", [0.0, 0.0, 0.0], ("vec", 3))
         off = c.get("offset_mm", [0.0, 0.0, 0.0], ("vec", 3))
         pp = c.get("principal_offset_px", [0.0, 0.0], ("vec", 2))
         dist = c.get("distortion", dist_default, ("vec", None), _opencv_count, _OPENCV_COUNTS)
-        f_scale = c.get("focal_scale", 1.0, float, *_POS)
+        f_scale = c.get("focal_scale", 1.0, float, *POSITIVE)
         c.done()
         f_px = cam_focal / (pixel * 1e-3)
         T = look_at(eye, target, down)
@@ -255,7 +255,7 @@ def _parse_rig(g: _Table, width: int, height: int, base, axis) -> RigCalibration
     return RigCalibration(cameras=cams, base_point_world_mm=base, insertion_axis_world=axis)
 
 
-def _parse_dressing(d: _Table, lights: list, ambient: float) -> SetDressing:
+def _parse_dressing(d: Table, lights: list, ambient: float) -> SetDressing:
     from .textures import KINDS, LEGACY_KINDS, PHOTOS
 
     kind = d.get("kind", "gradient", str, lambda v: v in KINDS, f"must be one of {', '.join(KINDS)}")
@@ -279,7 +279,7 @@ def _parse_dressing(d: _Table, lights: list, ambient: float) -> SetDressing:
         texture_px=d.get("texture_px", 256 if kind in LEGACY_KINDS else 0, int, lambda v: v == 0 or 16 <= v <= 4096,
                          "must be 0 (from the image size) or in [16, 4096]"),
         planes=d.get("planes", "floor-wall", str, lambda v: v in ("floor-wall", "per-camera"), 'must be "floor-wall" or "per-camera"'),
-        behind_mm=d.get("behind_mm", 80.0, float, *_POS),
+        behind_mm=d.get("behind_mm", 80.0, float, *POSITIVE),
         clutter=d.get("clutter", 0, int, lambda v: 0 <= v <= 50, "must be in [0, 50]"),
     )
     d.done()
@@ -293,7 +293,7 @@ def _parse_lights(tables: list) -> list:
         lights.append(
             Light(
                 kind=kind,
-                intensity=t.get("intensity", 3.0, float, *_POS),
+                intensity=t.get("intensity", 3.0, float, *POSITIVE),
                 direction=tuple(t.get("direction", [0.0, 0.3, -1.0], ("vec", 3))),
                 position_mm=tuple(t.get("position_mm", [0.0, 0.0, 300.0], ("vec", 3))),
                 color=tuple(t.get("color", [1.0, 1.0, 1.0], ("vec", 3))),
@@ -303,10 +303,10 @@ def _parse_lights(tables: list) -> list:
     return lights
 
 
-def _parse_noise(n: _Table) -> NoiseModel:
+def _parse_noise(n: Table) -> NoiseModel:
     kw = {}
     for key, default in NoiseModel().__dict__.items():
-        kw[key] = n.get(key, default, float, *_NONNEG)
+        kw[key] = n.get(key, default, float, *NONNEGATIVE)
     if kw["lighting_period_frames"] <= 0:
         n.fail("lighting_period_frames", f"must be > 0, got {kw['lighting_period_frames']}")
     if kw["gain"] <= 0:
@@ -323,16 +323,16 @@ def _parse_noise(n: _Table) -> NoiseModel:
 _MAX_FRAMES = 1_000_000
 
 
-def _parse_sequence(s: _Table, robot: Robot) -> tuple:
+def _parse_sequence(s: Table, robot: Robot) -> tuple:
     n_tubes = robot.n_tubes
     bg = s.get("background_frames", 30, int, lambda v: 0 <= v <= _MAX_FRAMES, f"must be in [0, {_MAX_FRAMES}]")
-    dt = s.get("frame_interval_s", 1.0, float, *_POS)
+    dt = s.get("frame_interval_s", 1.0, float, *POSITIVE)
     joints = []
     for st in s.tables("steps"):
-        frames = st.get("frames", _REQUIRED, int, lambda v: 1 <= v <= _MAX_FRAMES, f"must be in [1, {_MAX_FRAMES}]")
+        frames = st.get("frames", REQUIRED, int, lambda v: 1 <= v <= _MAX_FRAMES, f"must be in [1, {_MAX_FRAMES}]")
         ends = {}
         for key in ("extension_mm", "rotation_deg"):
-            a = st.get(f"{key}_from", _REQUIRED, ("vec", n_tubes))
+            a = st.get(f"{key}_from", REQUIRED, ("vec", n_tubes))
             b = st.get(f"{key}_to", a, ("vec", n_tubes))
             ends[key] = (np.asarray(a), np.asarray(b))
         st.done()
@@ -350,7 +350,7 @@ def _parse_sequence(s: _Table, robot: Robot) -> tuple:
     return joints, bg, dt
 
 
-def _parse_classes(c: _Table) -> dict:
+def _parse_classes(c: Table) -> dict:
     """Free-form class labels: every value must be a string."""
     classes = {}
     for key in sorted(c.data):
@@ -361,7 +361,7 @@ def _parse_classes(c: _Table) -> dict:
 
 def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     """Validate a parsed TOML document and build a :class:`Scene`."""
-    top = _Table(data, "", source)
+    top = Table(data, "", source)
     top.get("format", "ctr-bench-scene", str, lambda v: v == "ctr-bench-scene", 'must be "ctr-bench-scene"')
     top.get("version", 1, int, lambda v: v == 1, "must be 1 (the only version this ctr-bench reads)")
     name = top.get("name", Path(source).stem, str)
@@ -380,7 +380,7 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     robot, model, base, axis = parse_robot_table(top.table("robot", required=True), source)
     rig = _parse_rig(top.table("rig"), width, height, base, axis)
     lighting = top.table("lighting")
-    ambient = lighting.get("ambient", 0.35, float, *_NONNEG)
+    ambient = lighting.get("ambient", 0.35, float, *NONNEGATIVE)
     lights = _parse_lights(lighting.tables("lights")) or [Light("directional", 3.0, (0.2, 0.5, -1.0))]
     lighting.done()
     dressing = _parse_dressing(top.table("backdrop"), lights, ambient)

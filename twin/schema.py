@@ -1,7 +1,7 @@
 """Typed, checked access to TOML tables: the schema helpers every twin file reader shares.
 
 Scene files (:mod:`twin.scene`), robot files (:mod:`twin.robotfile`), board files and the
-rig's own files read their tables through :class:`_Table`, so every error is one line
+rig's own files read their tables through :class:`Table`, so every error is one line
 naming the file, the key and what is wrong (``scenes/x.toml: robot.tubes[1].outer_diameter_mm:
 must be > 0, got -1``), and an unknown key is an error.
 """
@@ -15,14 +15,14 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["SceneError", "read_toml"]
+__all__ = ["SceneError", "Table", "REQUIRED", "POSITIVE", "NONNEGATIVE", "read_toml"]
 
 
 class SceneError(ValueError):
     """A scene file (or a file read with the same helpers) that cannot be used; the message names file and key."""
 
 
-class _Table:
+class Table:
     """Typed, checked access to one TOML table; unknown keys are errors."""
 
     def __init__(self, data, path: str, source: str):
@@ -40,7 +40,7 @@ class _Table:
         raise SceneError(f"{self.source}: {self._key(key)}: {why}")
 
     def get(self, key, default=None, kind=None, check=None, why=None):
-        """Value of ``key`` (``default`` when absent; :data:`_REQUIRED` makes it an error).
+        """Value of ``key`` (``default`` when absent; :data:`REQUIRED` makes it an error).
 
         ``kind`` is ``float`` (finite, returned as float), ``int``, ``str``, ``bool`` or
         ``("vec", n)`` (a list of ``n`` finite numbers, None for any length, returned as
@@ -48,7 +48,7 @@ class _Table:
         """
         self.used.add(key)
         if key not in self.data:
-            if default is _REQUIRED:
+            if default is REQUIRED:
                 self.fail(key, "missing (required)")
             return default
         value = self.data[key]
@@ -88,15 +88,15 @@ class _Table:
         if key not in self.data:
             if required:
                 self.fail(key, "missing table (required)")
-            return _Table({}, self._key(key), self.source)
-        return _Table(self.data[key], self._key(key), self.source)
+            return Table({}, self._key(key), self.source)
+        return Table(self.data[key], self._key(key), self.source)
 
     def tables(self, key):
         self.used.add(key)
         items = self.data.get(key, [])
         if not isinstance(items, list):
             self.fail(key, "must be an array of tables ([[...]])")
-        return [_Table(item, f"{self._key(key)}[{i}]", self.source) for i, item in enumerate(items)]
+        return [Table(item, f"{self._key(key)}[{i}]", self.source) for i, item in enumerate(items)]
 
     def done(self):
         unknown = sorted(set(self.data) - self.used)
@@ -114,10 +114,10 @@ def _finite_number(value) -> bool:
     return abs(value) <= _MAX_MAGNITUDE  # False for NaN and inf (and no float conversion of big ints)
 
 
-#: ``default`` of :meth:`_Table.get` for a key that must be present.
-_REQUIRED = object()
-_POS = (lambda v: v > 0, "must be > 0")
-_NONNEG = (lambda v: v >= 0, "must be >= 0")
+#: ``default`` of :meth:`Table.get` for a key that must be present.
+REQUIRED = object()
+POSITIVE = (lambda v: v > 0, "must be > 0")
+NONNEGATIVE = (lambda v: v >= 0, "must be >= 0")
 
 
 def read_toml(path, what: str, error=SceneError) -> dict:

@@ -34,7 +34,7 @@ from rig.backbone_csv import write_backbone_csv
 from rig.hw.actuator import JOINTS, JointValues, SoftLimits
 from rig.rundir import finite_or_none, summarize, write_json_atomic
 from rig.session import SessionWriter
-from twin.scene import _REQUIRED, SceneError, _Table, read_toml
+from twin.schema import NONNEGATIVE, POSITIVE, REQUIRED, SceneError, Table, read_toml
 
 __all__ = ["SequenceError", "ExperimentError", "Step", "Sequence", "load_sequence", "sequence_from_dict",
            "flatten", "check_limits", "check_background_first", "grab_targets", "ExperimentRunner", "STEP_KINDS"]
@@ -92,7 +92,7 @@ class Sequence:
         return sum(s.frames for s, _ in flatten(self.steps) if s.kind == "background")
 
 
-def _joint_table(t: _Table, key: str) -> dict | None:
+def _joint_table(t: Table, key: str) -> dict | None:
     if key not in t.data:
         return None
     sub = t.table(key)
@@ -107,37 +107,33 @@ def _joint_table(t: _Table, key: str) -> dict | None:
     return out
 
 
-_POS = (lambda v: v > 0, "must be > 0")
-_NONNEG = (lambda v: v >= 0, "must be >= 0")
-
-
 def _parse_steps(tables: list, depth: int = 0) -> tuple:
     steps = []
     for t in tables:
-        kind = t.get("kind", _REQUIRED, str, lambda v: v in STEP_KINDS, f"must be one of {', '.join(STEP_KINDS)}")
+        kind = t.get("kind", REQUIRED, str, lambda v: v in STEP_KINDS, f"must be one of {', '.join(STEP_KINDS)}")
         kw: dict = {"kind": kind, "key": t.path}
         if kind == "home":
-            kw["timeout_s"] = t.get("timeout_s", None, float, *_POS)
+            kw["timeout_s"] = t.get("timeout_s", None, float, *POSITIVE)
         elif kind == "move":
             kw["to"] = _joint_table(t, "to")
             kw["by"] = _joint_table(t, "by")
             if (kw["to"] is None) == (kw["by"] is None):
                 t.fail("to", "give exactly one of 'to' (absolute targets) or 'by' (relative to the last target)")
             kw["wait"] = t.get("wait", True, bool)
-            kw["timeout_s"] = t.get("timeout_s", None, float, *_POS)
+            kw["timeout_s"] = t.get("timeout_s", None, float, *POSITIVE)
         elif kind == "dwell":
-            kw["seconds"] = t.get("seconds", _REQUIRED, float, *_NONNEG)
+            kw["seconds"] = t.get("seconds", REQUIRED, float, *NONNEGATIVE)
         elif kind == "grab":
             kw["pairs"] = t.get("pairs", 1, int, lambda v: v >= 1, "must be >= 1")
-            kw["interval_s"] = t.get("interval_s", 0.0, float, *_NONNEG)
+            kw["interval_s"] = t.get("interval_s", 0.0, float, *NONNEGATIVE)
             kw["settle"] = t.get("settle", True, bool)
-            kw["timeout_s"] = t.get("timeout_s", None, float, *_POS)
+            kw["timeout_s"] = t.get("timeout_s", None, float, *POSITIVE)
         elif kind == "background":
-            kw["frames"] = t.get("frames", _REQUIRED, int, lambda v: v >= 1, "must be >= 1")
+            kw["frames"] = t.get("frames", REQUIRED, int, lambda v: v >= 1, "must be >= 1")
             kw["retract"] = _joint_table(t, "retract")
             kw["prompt"] = t.get("prompt", None, str)
         elif kind == "repeat":
-            kw["times"] = t.get("times", _REQUIRED, int, lambda v: v >= 0, "must be >= 0")
+            kw["times"] = t.get("times", REQUIRED, int, lambda v: v >= 0, "must be >= 0")
             if depth >= 8:
                 t.fail("steps", "repeat blocks nest too deep (more than 8)")
             inner = t.tables("steps")
@@ -152,13 +148,13 @@ def _parse_steps(tables: list, depth: int = 0) -> tuple:
 def sequence_from_dict(data: dict, source: str = "<sequence>") -> Sequence:
     """Validate a parsed TOML document and build a :class:`Sequence`."""
     try:
-        top = _Table(data, "", source)
+        top = Table(data, "", source)
         top.get("format", FORMAT, str, lambda v: v == FORMAT, f'must be "{FORMAT}"')
         top.get("version", 1, int, lambda v: v == 1, "must be 1 (the only version this ctr-bench reads)")
         name = top.get("name", Path(source).stem, str)
         st = top.table("settings")
-        settle = st.get("settle_timeout_s", 30.0, float, *_POS)
-        home = st.get("home_timeout_s", 60.0, float, *_POS)
+        settle = st.get("settle_timeout_s", 30.0, float, *POSITIVE)
+        home = st.get("home_timeout_s", 60.0, float, *POSITIVE)
         st.done()
         tables = top.tables("steps")
         if not tables:

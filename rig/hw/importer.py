@@ -31,7 +31,7 @@ import numpy as np
 
 from recon.calibration import IMAGE_SUFFIXES
 from rig.hw.camera import CameraError, to_mono
-from rig.session import SessionWriter, _atomic_write_bytes
+from rig.session import SessionWriter, atomic_write_bytes
 from twin.robot import Joints
 from twin.robotfile import robot_from_toml, robot_to_dict
 from twin.schema import SceneError, read_toml
@@ -682,7 +682,7 @@ def write_import(plan: ImportPlan, out, progress=None) -> Path:
             rows = _write_passes(plan, writer, progress)
         buf = io.StringIO()
         csv.writer(buf, lineterminator="\n").writerows([["kind", "index"] + list(plan.rig.names)] + rows)
-        _atomic_write_bytes(out / "sources.csv", buf.getvalue().encode())
+        atomic_write_bytes(out / "sources.csv", buf.getvalue().encode())
     except BaseException:
         shutil.rmtree(out, ignore_errors=True)
         if existed:

@@ -6,7 +6,7 @@ them -- the digital twin, the Arduino (real or emulated) or a recorded session.
 The format is documented key by key in ``docs/rig-file.md``; examples are
 ``scenes/rig-twin.toml``, ``scenes/rig-twin-arduino.toml`` and ``scenes/rig-lab.toml``.
 
-Validation is strict, as for scene files (the same ``_Table`` helper): unknown
+Validation is strict, as for scene files (the same ``Table`` helper): unknown
 keys are errors, and every error names the file and the key, e.g.
 ``scenes/rig-lab.toml: cameras.side.source: missing (required)``.
 
@@ -27,9 +27,10 @@ from rig.hw.actuator import JOINTS, Actuator, JointValues, SoftLimits
 from rig.hw.arduino import ArduinoActuator
 from rig.hw.camera import CameraPair, OpenCVCamera, ReplayCamera, ReplayWorld, TwinCameraPair, TwinWorld
 from rig.hw.virtual import ReplayActuator, TwinActuator
-from twin.robotfile import robot_to_dict
 from twin.robot import Joints
-from twin.scene import _REQUIRED, SceneError, _Table, load_scene, read_toml
+from twin.robotfile import robot_to_dict
+from twin.scene import load_scene
+from twin.schema import POSITIVE, REQUIRED, SceneError, Table, read_toml
 
 __all__ = ["RigFileError", "JointMap", "RigFile", "Rig", "load_rig_file", "rig_file_from_dict",
            "CAMERA_KINDS", "ACTUATOR_KINDS"]
@@ -298,7 +299,7 @@ class Rig:
 
 
 # ----------------------------------------------------------------------------- parsing
-def _joint_values(t: _Table, key: str, default: JointValues, check=None, why=None) -> JointValues:
+def _joint_values(t: Table, key: str, default: JointValues, check=None, why=None) -> JointValues:
     """``{insertion_mm = .., rotation_deg = ..}``; a missing joint keeps its default."""
     sub = t.table(key)
     vals = {j: sub.get(j, getattr(default, j), float, check, why) for j in JOINTS}
@@ -306,13 +307,10 @@ def _joint_values(t: _Table, key: str, default: JointValues, check=None, why=Non
     return JointValues(**vals)
 
 
-_POS = (lambda v: v > 0, "must be > 0")
-
-
-def _parse_joints(j: _Table, scene) -> JointMap:
+def _parse_joints(j: Table, scene) -> JointMap:
     if not j.data and scene is None:
         j.fail("home_extension_mm", "missing (required: the [joints] table, unless a scene gives the default)")
-    default_ext = list(scene.joints[0].extension_mm) if scene is not None else _REQUIRED
+    default_ext = list(scene.joints[0].extension_mm) if scene is not None else REQUIRED
     default_rot = list(scene.joints[0].rotation_deg) if scene is not None else None
     ext = j.get("home_extension_mm", default_ext, ("vec", None), lambda v: len(v) >= 1 and min(v) >= 0,
                 "must be a non-empty list of extensions >= 0")
@@ -325,15 +323,15 @@ def _parse_joints(j: _Table, scene) -> JointMap:
     return JointMap(tuple(float(v) for v in ext), tuple(float(v) for v in rot), tube)
 
 
-def _parse_cameras(c: _Table, base: Path, has_scene: bool) -> dict:
-    kind = c.get("kind", _REQUIRED, str, lambda v: v in CAMERA_KINDS, f"must be one of {', '.join(CAMERA_KINDS)}")
+def _parse_cameras(c: Table, base: Path, has_scene: bool) -> dict:
+    kind = c.get("kind", REQUIRED, str, lambda v: v in CAMERA_KINDS, f"must be one of {', '.join(CAMERA_KINDS)}")
     default_timeout = 30.0 if kind == "twin" else 5.0
-    out = {"kind": kind, "timeout_s": c.get("timeout_s", default_timeout, float, *_POS)}
+    out = {"kind": kind, "timeout_s": c.get("timeout_s", default_timeout, float, *POSITIVE)}
     if kind == "twin":
         if not has_scene:
             c.fail("kind", "twin cameras need the top-level 'scene' key (the scene file to render)")
     elif kind == "replay":
-        out["session"] = str(base / c.get("session", _REQUIRED, str))
+        out["session"] = str(base / c.get("session", REQUIRED, str))
     else:
         per = {}
         for name, value in c.data.items():
@@ -342,7 +340,7 @@ def _parse_cameras(c: _Table, base: Path, has_scene: bool) -> dict:
             if not isinstance(value, dict):
                 c.fail(name, "unknown key (per-camera settings are tables: [cameras.<name>])")
             t = c.table(name)
-            src = t.get("source", _REQUIRED)
+            src = t.get("source", REQUIRED)
             if isinstance(src, bool) or not isinstance(src, (int, str)) or (isinstance(src, str) and not src.strip()):
                 t.fail("source", f"must be a device index, a device path, a video file or a GStreamer pipeline, got {src!r}")
             if isinstance(src, str) and "!" not in src and not src.strip().isdigit() and not src.startswith("/dev/"):
@@ -353,7 +351,7 @@ def _parse_cameras(c: _Table, base: Path, has_scene: bool) -> dict:
                 "source": src,
                 "width": t.get("width", None, int, lambda v: v > 0, "must be > 0"),
                 "height": t.get("height", None, int, lambda v: v > 0, "must be > 0"),
-                "fps": t.get("fps", None, float, *_POS),
+                "fps": t.get("fps", None, float, *POSITIVE),
                 "discard": t.get("discard", 0, int, lambda v: 0 <= v <= 100, "must be in [0, 100]"),
                 "loop": t.get("loop", False, bool),
             }
@@ -367,8 +365,8 @@ def _parse_cameras(c: _Table, base: Path, has_scene: bool) -> dict:
     return out
 
 
-def _parse_actuator(a: _Table, source: str) -> dict:
-    kind = a.get("kind", _REQUIRED, str, lambda v: v in ACTUATOR_KINDS, f"must be one of {', '.join(ACTUATOR_KINDS)}")
+def _parse_actuator(a: Table, source: str) -> dict:
+    kind = a.get("kind", REQUIRED, str, lambda v: v in ACTUATOR_KINDS, f"must be one of {', '.join(ACTUATOR_KINDS)}")
     lim = a.table("limits")
     try:
         limits = SoftLimits.from_dict(lim.data, prefix="actuator.limits.")
@@ -376,23 +374,23 @@ def _parse_actuator(a: _Table, source: str) -> dict:
         raise RigFileError(f"{source}: {exc}") from None
     out = {"kind": kind, "limits": limits}
     if kind == "twin":
-        out["max_velocity"] = _joint_values(a, "max_velocity", JointValues(15.0, 180.0), *_POS)
-        out["acceleration"] = _joint_values(a, "acceleration", JointValues(195.0, 1750.0), *_POS)
+        out["max_velocity"] = _joint_values(a, "max_velocity", JointValues(15.0, 180.0), *POSITIVE)
+        out["acceleration"] = _joint_values(a, "acceleration", JointValues(195.0, 1750.0), *POSITIVE)
         out["settle_s"] = a.get("settle_s", 0.03, float, lambda v: v >= 0, "must be >= 0")
-        out["time_scale"] = a.get("time_scale", 1.0, float, *_POS)
+        out["time_scale"] = a.get("time_scale", 1.0, float, *POSITIVE)
         out["start"] = _joint_values(a, "start", JointValues(0.0, 0.0))
     elif kind == "arduino":
         port = a.get("port", None, str)
         out["port"] = port
         out["baudrate"] = a.get("baudrate", 115200, int, lambda v: v > 0, "must be > 0")
-        out["command_timeout_s"] = a.get("command_timeout_s", 0.25, float, *_POS)
-        out["ready_timeout_s"] = a.get("ready_timeout_s", 3.0, float, *_POS)
-        out["tolerance"] = _joint_values(a, "tolerance", JointValues(0.05, 0.5), *_POS)
+        out["command_timeout_s"] = a.get("command_timeout_s", 0.25, float, *POSITIVE)
+        out["ready_timeout_s"] = a.get("ready_timeout_s", 3.0, float, *POSITIVE)
+        out["tolerance"] = _joint_values(a, "tolerance", JointValues(0.05, 0.5), *POSITIVE)
     a.done()
     return out
 
 
-def _check_travel(top: _Table, jm: JointMap, limits: SoftLimits, scene, source: str) -> None:
+def _check_travel(top: Table, jm: JointMap, limits: SoftLimits, scene, source: str) -> None:
     """Soft limits that would take a tube outside its length (twin scenes) are errors."""
     if scene is None:
         return
@@ -409,7 +407,7 @@ def rig_file_from_dict(data: dict, source: str = "<rig>", serial: str | None = N
     """Validate a parsed TOML document and build a :class:`RigFile`."""
     base = Path(source).resolve().parent if not source.startswith("<") else Path.cwd()
     try:
-        top = _Table(data, "", source)
+        top = Table(data, "", source)
         top.get("format", FORMAT, str, lambda v: v == FORMAT, f'must be "{FORMAT}"')
         top.get("version", 1, int, lambda v: v == 1, "must be 1 (the only version this ctr-bench reads)")
         name = top.get("name", Path(source).stem, str)
