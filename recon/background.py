@@ -35,6 +35,18 @@ def to_gray(images: np.ndarray) -> np.ndarray:
 
     Colour cameras deliver RGB frames; the background model and the difference
     work on one channel, as the mono cameras of the paper's rig give.
+
+    Parameters
+    ----------
+    images : array_like
+        ``(..., H, W, 3)`` RGB images (uint8 gray levels 0-255 or float32), or
+        gray ones of any other shape (e.g. ``(H, W)`` or ``(N, H, W)``).
+
+    Returns
+    -------
+    ndarray
+        ``(..., H, W)`` gray images of the input's dtype (``cv2.COLOR_RGB2GRAY``
+        weights); input that is not 3-channel comes back as ``np.asarray(images)``.
     """
     a = np.asarray(images)
     if a.ndim < 3 or a.shape[-1] != 3:
@@ -99,7 +111,13 @@ class EigenBackground:
 
     @property
     def k(self) -> int:
-        """Number of eigenbackgrounds actually kept."""
+        """Number of eigenbackgrounds actually kept.
+
+        Returns
+        -------
+        int
+            ``k'``, the rows of ``basis`` (at most ``EigenBackgroundParams.k``).
+        """
         return int(self.basis.shape[0])
 
 
@@ -217,6 +235,12 @@ def no_picture(values: np.ndarray, background_peak: float, background_range: flo
         ~2 gray levels for a backdrop spanning 200): no robot can be told
         from it, and calling its edges "the robot at the border" would
         mislead. A uniform background (masks) has no range: never flat.
+
+    Returns
+    -------
+    str or None
+        A one-line reason (``"all-black frame"`` or ``"blank frame (...)"``), or
+        None when the frame may hold a picture.
     """
     hi = float(np.max(values))
     if background_peak > 0 and hi <= black_fraction * background_peak:

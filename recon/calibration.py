@@ -204,20 +204,43 @@ class BoardSpec:
 
     @property
     def size(self) -> tuple:
-        """``(cols, rows)``: OpenCV's pattern size."""
+        """``(cols, rows)``: OpenCV's pattern size.
+
+        Returns
+        -------
+        tuple of int
+            ``(cols, rows)`` inner corners, as ``cv2.findChessboardCorners`` takes them.
+        """
         return (self.cols, self.rows)
 
     @property
     def label(self) -> str:
+        """The board's size as text, e.g. ``"9x6"`` (cols x rows inner corners).
+
+        Returns
+        -------
+        str
+        """
         return f"{self.cols}x{self.rows}"
 
     @property
     def n_corners(self) -> int:
+        """Number of inner corners, ``cols * rows``.
+
+        Returns
+        -------
+        int
+        """
         return self.cols * self.rows
 
     @property
     def asymmetric(self) -> bool:
-        """Whether the first corner can be told from the last (``cols + rows`` odd)."""
+        """Whether the first corner can be told from the last (``cols + rows`` odd).
+
+        Returns
+        -------
+        bool
+        """
         return (self.cols + self.rows) % 2 == 1
 
     def object_points(self) -> np.ndarray:
@@ -337,10 +360,22 @@ class Detection:
 
     @property
     def found(self) -> bool:
+        """Whether the board's corners were found in the image (``corners`` is not None).
+
+        Returns
+        -------
+        bool
+        """
         return self.corners is not None
 
     @property
     def usable(self) -> bool:
+        """Whether the view can be used: corners found and no ``reason`` against it (e.g. blur).
+
+        Returns
+        -------
+        bool
+        """
         return self.corners is not None and self.reason is None
 
 
@@ -663,6 +698,15 @@ class ViewRecord:
     edge_width_px: float | None = None
 
     def to_dict(self) -> dict:
+        """The record as JSON-ready values for the calibration report.
+
+        Returns
+        -------
+        dict
+            ``name`` and ``used`` always; ``reason``, ``rms_px``, ``max_px`` (px),
+            ``oblique_deg`` (deg) and ``edge_width_px`` (px) when set, floats
+            rounded to 5 decimals.
+        """
         d = {"name": self.name, "used": self.used}
         for k in ("reason", "rms_px", "max_px", "oblique_deg", "edge_width_px"):
             v = getattr(self, k)
@@ -723,10 +767,24 @@ class CameraCalibration:
 
     @property
     def used(self) -> list:
+        """The views the intrinsics were fitted to.
+
+        Returns
+        -------
+        list of ViewRecord
+            The records of ``views`` with ``used`` True, in their order.
+        """
         return [v for v in self.views if v.used]
 
     @property
     def rejected(self) -> list:
+        """The views left out, each with its ``reason``.
+
+        Returns
+        -------
+        list of ViewRecord
+            The records of ``views`` with ``used`` False, in their order.
+        """
         return [v for v in self.views if not v.used]
 
     def coverage(self, cells: tuple = (8, 6)) -> float:
@@ -812,6 +870,13 @@ class StereoCalibration:
 
     @property
     def used(self) -> list:
+        """The stereo pairs ``T_side_top`` was fitted to.
+
+        Returns
+        -------
+        list of ViewRecord
+            The records of ``pairs`` with ``used`` True, in their order.
+        """
         return [v for v in self.pairs if v.used]
 
 
@@ -885,6 +950,17 @@ class CalibrationReport:
     notes: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
+        """The report as JSON-ready values (``format`` ``"ctr-bench-calibration-report"``, version 1).
+
+        Returns
+        -------
+        dict
+            The board (``square_mm`` in mm), per camera ``K`` (3x3, px), ``dist``
+            (OpenCV order), RMS (px), view counts, coverage and per-view records;
+            the stereo ``T_side_top`` and the world ``T_top_world`` and
+            ``T_side_world`` (4x4 lists, mm; ``T_<to>_<from>``) with their RMS
+            (px); the stage RMS (px) and the notes.
+        """
         cams = {}
         for n, c in self.cameras.items():
             cams[n] = {

@@ -72,6 +72,16 @@ def camera_matrix_problem(K) -> str | None:
     """Why ``K`` (3x3, px) is no camera matrix, or None.
 
     Finite, positive focal lengths, ``K[1, 0] = 0`` and last row ``0 0 1`` (to :data:`K_ROW_TOL`).
+
+    Parameters
+    ----------
+    K : array_like
+        The camera matrix, ``(3, 3)`` (px; ``K[0, 1]`` is the skew, allowed).
+
+    Returns
+    -------
+    str or None
+        A one-line reason (shape, non-finite, focal lengths, last row), or None when sound.
     """
     K = np.asarray(K, np.float64)
     if K.shape != (3, 3):
@@ -90,6 +100,18 @@ def principal_point_problem(K, width: int, height: int) -> str | None:
 
     Pixel centres are at integers, so the image spans ``[-0.5, width - 0.5]`` x
     ``[-0.5, height - 0.5]`` px.
+
+    Parameters
+    ----------
+    K : array_like
+        The ``(3, 3)`` camera matrix (px); ``(cx, cy) = (K[0][2], K[1][2])``.
+    width, height : int
+        The image size (px).
+
+    Returns
+    -------
+    str or None
+        A one-line reason giving the point and the image size, or None when inside.
     """
     cx, cy = float(K[0][2]), float(K[1][2])
     if not (-0.5 <= cx <= width - 0.5 and -0.5 <= cy <= height - 0.5):
@@ -102,6 +124,16 @@ def field_of_view_problem(camera) -> str | None:
 
     The image corners must lie between 1e-6 and 1e6 focal lengths off axis (normalized):
     a field of view beyond 0.0001 deg and short of 180 deg. Needs a sound ``K``.
+
+    Parameters
+    ----------
+    camera : recon.camera.Camera
+        Its ``K`` (px), ``width`` and ``height`` (px) are used.
+
+    Returns
+    -------
+    str or None
+        A one-line reason giving the corners' radius (normalized), or None.
     """
     rho = _corner_radius(camera)
     if not _MIN_CORNER_RADIUS <= rho <= _MAX_CORNER_RADIUS:
@@ -116,6 +148,17 @@ def rotation_problem(T) -> str | None:
 
     Finite, last row ``0 0 0 1`` (to :data:`LAST_ROW_TOL`), ``max |R^T R - I| <=``
     :data:`ROTATION_TOL` and ``|det R - 1| <=`` :data:`ROTATION_TOL`.
+
+    Parameters
+    ----------
+    T : array_like
+        A homogeneous transform, ``(4, 4)``, e.g. ``T_cam_world`` (translation in mm).
+
+    Returns
+    -------
+    str or None
+        A one-line reason (shape, non-finite, last row, not orthonormal with the figure,
+        a reflection), or None when rigid.
     """
     T = np.asarray(T, np.float64)
     if T.shape != (4, 4):
@@ -211,6 +254,17 @@ def distortion_problem(camera) -> str | None:
       at the corners, so over-fitted coefficients that cancel there pass.
 
     Needs a finite ``K`` with positive focal lengths.
+
+    Parameters
+    ----------
+    camera : recon.camera.Camera
+        Its ``K`` (px), image size (px) and ``dist`` (OpenCV coefficients, any model) are used.
+
+    Returns
+    -------
+    str or None
+        A one-line reason (the field of view, a fold-over with its direction in deg, or an
+        implausible strength with the figure), or None when the lens model is plausible.
     """
     profile = _radial_profile(camera)
     if isinstance(profile, str):
@@ -236,6 +290,16 @@ def camera_problems(camera) -> list:
     ``"T_cam_world"`` (:func:`rotation_problem`). The distortion, whose coefficients the
     Camera already holds finite, is only looked at when ``K`` is sound: its checks need
     the image in normalized coordinates.
+
+    Parameters
+    ----------
+    camera : recon.camera.Camera
+
+    Returns
+    -------
+    list of tuple of (str, str)
+        ``(key, reason)`` pairs, at most one per key in the order ``K`` or ``dist``, then
+        ``T_cam_world``; empty when the camera is sound.
     """
     problems = []
     K, size = camera.K, (camera.width, camera.height)
@@ -256,6 +320,19 @@ def check_camera(camera, where: str, error=CalibrationError) -> None:
     """Raise ``error`` (one line: ``"<where>.<key>: <reason>"``) at ``camera``'s first problem.
 
     ``where`` names the file and the camera, e.g. ``"S/rig.json: cameras.side"``.
+
+    Parameters
+    ----------
+    camera : recon.camera.Camera
+    where : str
+        The message's prefix, naming the file and the camera.
+    error : type
+        The ``ValueError`` subclass raised.
+
+    Raises
+    ------
+    error
+        At the first of :func:`camera_problems`.
     """
     problems = camera_problems(camera)
     if problems:

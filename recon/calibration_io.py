@@ -173,7 +173,23 @@ def _writer(path) -> cv2.FileStorage:
 
 # ----------------------------------------------------------------------------- OpenCV
 def save_opencv_camera(path, camera: Camera, with_pose: bool = True) -> None:
-    """One camera's intrinsics (and, with ``with_pose``, its ``T_cam_world``) as OpenCV YAML."""
+    """One camera's intrinsics (and, with ``with_pose``, its ``T_cam_world``) as OpenCV YAML.
+
+    Parameters
+    ----------
+    path : path
+        The file written (``cv2.FileStorage``; its folder is created).
+    camera : Camera
+        Written as ``camera_name``, ``image_width``, ``image_height`` (px), ``camera_matrix``
+        (3x3, px) and ``distortion_coefficients`` (1xN, the shortest OpenCV model holding them, 5 at least).
+    with_pose : bool
+        Also write ``T_cam_world`` (4x4, world -> camera, mm).
+
+    Raises
+    ------
+    OSError
+        The file cannot be written.
+    """
     fs = _writer(path)
     fs.write("camera_name", camera.name)
     fs.write("image_width", int(camera.width))
@@ -186,7 +202,26 @@ def save_opencv_camera(path, camera: Camera, with_pose: bool = True) -> None:
 
 
 def load_opencv_camera(path, name: str | None = None) -> Camera:
-    """A :class:`Camera` from an OpenCV YAML intrinsics file (identity pose unless it has ``T_cam_world``)."""
+    """A :class:`Camera` from an OpenCV YAML intrinsics file (identity pose unless it has ``T_cam_world``).
+
+    Parameters
+    ----------
+    path : path
+        A ``cv2.FileStorage`` file (YAML, XML or JSON) with the keys of :func:`save_opencv_camera`.
+    name : str, optional
+        The camera's name; default the file's ``camera_name``, else its stem.
+
+    Returns
+    -------
+    Camera
+        ``K`` (px), ``dist`` (OpenCV order), ``T_cam_world`` (4x4, mm; identity when absent).
+
+    Raises
+    ------
+    ValueError
+        Naming the file and the key: file missing or not FileStorage, a key missing, a bad
+        image size, or (:class:`CalibrationError`) a ``K`` or ``T_cam_world`` that the checks refuse.
+    """
     r = _Reader(path)
     try:
         src = str(r.path)
@@ -202,7 +237,26 @@ def load_opencv_camera(path, name: str | None = None) -> Camera:
 
 
 def save_opencv_stereo(path, side: Camera, top: Camera, T_side_top: np.ndarray, T_top_world: np.ndarray | None = None) -> None:
-    """The stereo file: ``M1 D1`` top, ``M2 D2`` side, ``R T`` = ``T_side_top`` (mm), optional ``T_top_world``."""
+    """The stereo file: ``M1 D1`` top, ``M2 D2`` side, ``R T`` = ``T_side_top`` (mm), optional ``T_top_world``.
+
+    Parameters
+    ----------
+    path : path
+        The ``cv2.FileStorage`` YAML file written (its folder is created).
+    side, top : Camera
+        Their intrinsics (``K`` px, ``dist``) and names; the poses are not written.
+    T_side_top : (4, 4) array_like
+        Top camera frame -> side camera frame (mm), written as ``R`` (3x3) and ``T`` (3x1, mm).
+    T_top_world : (4, 4) array_like, optional
+        World -> top camera frame (mm).
+
+    Raises
+    ------
+    ValueError
+        The cameras' image sizes differ (the format holds one).
+    OSError
+        The file cannot be written.
+    """
     if (side.width, side.height) != (top.width, top.height):
         raise ValueError(f"stereo file: the cameras' image sizes differ ({side.width}x{side.height} vs {top.width}x{top.height})")
     T = np.asarray(T_side_top, np.float64)
@@ -249,6 +303,24 @@ def load_opencv_stereo(path) -> dict:
     """Read a stereo file: ``{"side": Camera, "top": Camera, "T_side_top": 4x4, "T_top_world": 4x4 or None}``.
 
     The cameras come back at identity pose; ``T_top_world`` is None when the file has none.
+
+    Parameters
+    ----------
+    path : path
+        A ``cv2.FileStorage`` file with ``image_width``, ``image_height``, ``M1 D1`` (top),
+        ``M2 D2`` (side), ``R`` (3x3 or a rotation vector), ``T`` (mm) and optionally ``T_top_world``.
+
+    Returns
+    -------
+    dict
+        ``"top"``, ``"side"``: :class:`Camera` (named so, identity pose); ``"T_side_top"``:
+        (4, 4) top -> side (mm); ``"T_top_world"``: (4, 4) world -> top (mm) or None.
+
+    Raises
+    ------
+    ValueError
+        Naming the file and the key: missing, not a matrix, or (:class:`CalibrationError`)
+        refused by the checks.
     """
     r = _Reader(path)
     try:
@@ -348,6 +420,26 @@ def load_kalibr_camchain(path, cams: dict | None = None) -> dict:
 
     ``cams`` maps ``"top"`` and ``"side"`` to camchain keys (default ``cam0`` top, ``cam1``
     side). The chain's ``T_cn_cnm1`` (metres) becomes ``T_side_top`` in mm.
+
+    Parameters
+    ----------
+    path : path
+        The camchain YAML file.
+    cams : dict of str to str, optional
+        ``{"top": "camN", "side": "camM"}``: two neighbouring camchain keys.
+
+    Returns
+    -------
+    dict
+        ``"top"``, ``"side"``: :class:`Camera` (identity pose; ``K`` px, ``dist`` k1 k2 p1 p2);
+        ``"T_side_top"``: (4, 4) top -> side (mm); ``"T_top_world"``: None.
+
+    Raises
+    ------
+    ValueError
+        Naming the file and the key: not YAML, cameras not neighbours in the chain, a
+        missing ``T_cn_cnm1``, a non-pinhole or non-radtan camera, bad numbers, or
+        (:class:`CalibrationError`) intrinsics or a transform the checks refuse.
     """
     src = str(path)
     doc = _yaml_doc(path, "Kalibr camchain")
@@ -382,6 +474,20 @@ def ros_distortion(camera: Camera) -> tuple:
     """``(distortion_model, D)`` of ``camera`` for ROS: plumb_bob (5) or rational_polynomial (8 coefficients).
 
     ``ValueError`` when its thin-prism or tilt terms are non-zero: ROS cannot carry them.
+
+    Parameters
+    ----------
+    camera : Camera
+
+    Returns
+    -------
+    tuple of (str, list of float)
+        ``("plumb_bob", [k1 k2 p1 p2 k3])`` or ``("rational_polynomial", [k1 k2 p1 p2 k3 k4 k5 k6])``.
+
+    Raises
+    ------
+    ValueError
+        Naming the camera: non-zero terms beyond the 8-coefficient model.
     """
     n = model_size(camera.dist)
     if n not in _ROS_MODELS:
@@ -408,6 +514,24 @@ def ros_stereo_rectification(top: Camera, side: Camera, T_side_top: np.ndarray) 
     ``stereo_image_proc`` only handles horizontal pairs; ``image_proc`` rectifies either.
     With near-orthogonal cameras the epipoles lie in or near the images, so rectified
     images are strongly warped.
+
+    Parameters
+    ----------
+    top, side : Camera
+        Their intrinsics (``K`` px, ``dist``); the image sizes must agree.
+    T_side_top : (4, 4) array_like
+        Top camera frame -> side camera frame (mm); passed to OpenCV in metres.
+
+    Returns
+    -------
+    dict
+        ``"top"``, ``"side"``: ``(R, P)``, R (3, 3) camera -> rectified frame, P (3, 4)
+        rectified projection (px, translation column in px x m).
+
+    Raises
+    ------
+    ValueError
+        The cameras' image sizes differ.
     """
     if top.image_size != side.image_size:
         raise ValueError(f"stereo rectification: the cameras' image sizes differ ({top.width}x{top.height} vs {side.width}x{side.height})")
@@ -420,7 +544,26 @@ def ros_stereo_rectification(top: Camera, side: Camera, T_side_top: np.ndarray) 
 def save_ros_camera_info(path, camera: Camera, camera_name: str | None = None, R: np.ndarray | None = None,
                          P: np.ndarray | None = None) -> None:
     """A ROS ``camera_info`` YAML file; without ``R``, ``P`` (:func:`ros_stereo_rectification`) a monocular one
-    (R = I, P = [K | 0])."""
+    (R = I, P = [K | 0]).
+
+    Parameters
+    ----------
+    path : path
+        The YAML file written (its folder is created).
+    camera : Camera
+        Image size (px), ``K`` (px) and ``dist`` (:func:`ros_distortion`); the pose is not written.
+    camera_name : str, optional
+        The file's ``camera_name``; default ``camera.name``.
+    R : (3, 3) array_like, optional
+        Rectification rotation (camera -> rectified frame).
+    P : (3, 4) array_like, optional
+        Projection matrix (px).
+
+    Raises
+    ------
+    ValueError
+        The camera's distortion has no ROS model (:func:`ros_distortion`).
+    """
     K = np.asarray(camera.K, np.float64)
     R = np.eye(3) if R is None else np.asarray(R, np.float64)
     P = np.hstack([K, np.zeros((3, 1))]) if P is None else np.asarray(P, np.float64)
@@ -445,12 +588,48 @@ def _side_top(rig: RigCalibration) -> np.ndarray:
 
 
 def rig_rectification(rig: RigCalibration) -> dict:
-    """:func:`ros_stereo_rectification` of a rig's top and side cameras."""
+    """:func:`ros_stereo_rectification` of a rig's top and side cameras.
+
+    Parameters
+    ----------
+    rig : RigCalibration
+        Must have ``"top"`` and ``"side"`` cameras; ``T_side_top`` comes from their ``T_cam_world``.
+
+    Returns
+    -------
+    dict
+        ``"top"``, ``"side"``: ``(R, P)`` as :func:`ros_stereo_rectification` gives them.
+
+    Raises
+    ------
+    UnknownCameraError
+        The rig lacks ``top`` or ``side``.
+    ValueError
+        The image sizes differ.
+    """
     return ros_stereo_rectification(rig["top"], rig["side"], _side_top(rig))
 
 
 def export_rig_ros(rig: RigCalibration, stem) -> list:
-    """``<stem>_ros_top.yaml`` and ``<stem>_ros_side.yaml``: the rig as a rectified ROS stereo pair; returns the paths."""
+    """``<stem>_ros_top.yaml`` and ``<stem>_ros_side.yaml``: the rig as a rectified ROS stereo pair; returns the paths.
+
+    Parameters
+    ----------
+    rig : RigCalibration
+        With ``"top"`` and ``"side"`` cameras.
+    stem : path
+        Path prefix of the files, e.g. ``out/rig`` -> ``out/rig_ros_top.yaml``.
+
+    Returns
+    -------
+    list of Path
+        The top file, then the side file.
+
+    Raises
+    ------
+    ValueError
+        A camera's distortion has no ROS model, or the image sizes differ.
+    """
     stem = Path(stem)
     side, top = rig["side"], rig["top"]
     rect = rig_rectification(rig)
@@ -479,7 +658,27 @@ def _ros_get(doc: dict, key: str, src: str, rows: int | None = None, cols: int |
 
 
 def load_ros_camera_info(path, name: str | None = None) -> Camera:
-    """A :class:`Camera` (identity pose) from a ROS ``camera_info`` YAML file (plumb_bob or rational_polynomial)."""
+    """A :class:`Camera` (identity pose) from a ROS ``camera_info`` YAML file (plumb_bob or rational_polynomial).
+
+    Parameters
+    ----------
+    path : path
+        The ``camera_info`` YAML file.
+    name : str, optional
+        The camera's name; default the file's ``camera_name``, else its stem.
+
+    Returns
+    -------
+    Camera
+        Image size (px), ``K`` (px), ``dist`` (5 or 8 coefficients), identity ``T_cam_world``.
+        ``rectification_matrix`` and ``projection_matrix`` are ignored.
+
+    Raises
+    ------
+    ValueError
+        Naming the file and the key: missing, not YAML, a bad size, an unsupported
+        distortion model, malformed matrices, or (:class:`CalibrationError`) a ``K`` the checks refuse.
+    """
     path = Path(path)
     src = str(path)
     doc = _yaml_doc(path, "ROS camera_info file")
@@ -505,7 +704,26 @@ _WORLD_KEYS = ("T_top_world", "T_side_top", "T_side_world")
 
 def load_world_file(path) -> dict:
     """Transforms from a world file (YAML, JSON, or OpenCV FileStorage): any of ``T_top_world``,
-    ``T_side_top``, ``T_side_world`` (4x4, mm). At least ``T_top_world`` or ``T_side_world`` is required."""
+    ``T_side_top``, ``T_side_world`` (4x4, mm). At least ``T_top_world`` or ``T_side_world`` is required.
+
+    Parameters
+    ----------
+    path : path
+        ``.json``, ``.xml`` or ``%YAML`` FileStorage, else YAML; matrices as nested lists,
+        ROS-style ``{rows, cols, data}`` tables or OpenCV matrices.
+
+    Returns
+    -------
+    dict of str to ndarray
+        The keys present among ``T_top_world`` (world -> top), ``T_side_top`` (top -> side)
+        and ``T_side_world`` (world -> side), each (4, 4) float64, mm.
+
+    Raises
+    ------
+    ValueError
+        Naming the file and the key: missing file, invalid JSON/YAML, not 4x4, neither
+        ``T_top_world`` nor ``T_side_world``, or (:class:`CalibrationError`) not a rigid transform.
+    """
     path = Path(path)
     src = str(path)
     if not path.is_file():
@@ -543,7 +761,17 @@ def load_world_file(path) -> dict:
 
 
 def save_world_file(path, T_top_world: np.ndarray, T_side_top: np.ndarray | None = None) -> None:
-    """Write a YAML world file (``T_top_world`` and optionally ``T_side_top``)."""
+    """Write a YAML world file (``T_top_world`` and optionally ``T_side_top``).
+
+    Parameters
+    ----------
+    path : path
+        The YAML file written (its folder must exist).
+    T_top_world : (4, 4) array_like
+        World -> top camera frame (mm).
+    T_side_top : (4, 4) array_like, optional
+        Top camera frame -> side camera frame (mm).
+    """
     doc = {"T_top_world": np.asarray(T_top_world, float).tolist()}
     if T_side_top is not None:
         doc["T_side_top"] = np.asarray(T_side_top, float).tolist()
@@ -557,6 +785,32 @@ def rig_from_parts(side: Camera, top: Camera, T_top_world: np.ndarray, T_side_to
     """The rig file from two cameras' intrinsics and the transforms of the paper's eq. (1).
 
     ``T_side_world`` is ``T_side_top @ T_top_world`` unless given directly.
+
+    Parameters
+    ----------
+    side, top : Camera
+        Their image sizes (px), ``K`` (px) and ``dist``; their poses are replaced.
+    T_top_world : (4, 4) array_like
+        World -> top camera frame (mm).
+    T_side_top : (4, 4) array_like, optional
+        Top camera frame -> side camera frame (mm); needed unless ``T_side_world`` is given.
+    T_side_world : (4, 4) array_like, optional
+        World -> side camera frame (mm); takes precedence over ``T_side_top``.
+    base_point_world_mm : (3,) array_like
+        Where the robot leaves the actuation unit (world frame, mm).
+    insertion_axis_world : (3,) array_like
+        Insertion direction (world frame, unitless; normalized by :class:`RigCalibration`).
+
+    Returns
+    -------
+    RigCalibration
+        Cameras ``"side"`` and ``"top"`` with ``T_cam_world`` set.
+
+    Raises
+    ------
+    ValueError
+        Neither ``T_side_top`` nor ``T_side_world``, or (:class:`CalibrationError`) a
+        transform that is not rigid.
     """
     T_top_world = _check_T(T_top_world, "rig", "T_top_world")
     if T_side_world is None:
@@ -576,7 +830,27 @@ def rig_from_parts(side: Camera, top: Camera, T_top_world: np.ndarray, T_side_to
 
 def export_rig_opencv(rig: RigCalibration, stem) -> list:
     """Write ``<stem>_stereo.yaml`` (M1 D1 = top, M2 D2 = side, R T = T_side_top, T_top_world) and
-    ``<stem>_side.yaml`` / ``<stem>_top.yaml`` (intrinsics and ``T_cam_world``); returns the paths."""
+    ``<stem>_side.yaml`` / ``<stem>_top.yaml`` (intrinsics and ``T_cam_world``); returns the paths.
+
+    Parameters
+    ----------
+    rig : RigCalibration
+        With ``"top"`` and ``"side"`` cameras; ``T_side_top`` (mm) comes from their poses.
+    stem : path
+        Path prefix of the files, e.g. ``out/rig`` -> ``out/rig_stereo.yaml``.
+
+    Returns
+    -------
+    list of Path
+        The stereo file, then the side and top camera files.
+
+    Raises
+    ------
+    ValueError
+        The cameras' image sizes differ.
+    OSError
+        A file cannot be written.
+    """
     stem = Path(stem)
     side, top = rig["side"], rig["top"]
     T_side_top = _side_top(rig)

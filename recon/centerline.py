@@ -114,7 +114,13 @@ class CenterlineParams:
 
     @property
     def adaptive(self) -> bool:
-        """Whether the disks are sized per frame from the tube radii and the measured width."""
+        """Whether the disks are sized per frame from the tube radii and the measured width.
+
+        Returns
+        -------
+        bool
+            True when ``outer_tube_px > 0`` (tube radii in px are known); False: the fixed disk radii are used.
+        """
         return self.outer_tube_px > 0
 
 

@@ -52,6 +52,24 @@ def as_coefficients(dist, source: str = "dist") -> np.ndarray:
 
     Four coefficients (``k1 k2 p1 p2``) gain ``k3 = 0``; other counts than
     :data:`MODEL_SIZES` raise ``ValueError`` naming ``source``.
+
+    Parameters
+    ----------
+    dist : array_like
+        4, 5, 8, 12 or 14 coefficients in OpenCV's order (any shape, raveled; ``tau_x
+        tau_y`` in rad).
+    source : str
+        What the coefficients belong to, e.g. ``"camera 'side'"``; the messages start with it.
+
+    Returns
+    -------
+    ndarray
+        ``(5,)``, ``(8,)``, ``(12,)`` or ``(14,)`` float64, a fresh copy.
+
+    Raises
+    ------
+    ValueError
+        Another count, or a non-finite coefficient.
     """
     d = np.asarray(dist, np.float64).ravel()
     if d.size not in MODEL_SIZES:
@@ -62,7 +80,18 @@ def as_coefficients(dist, source: str = "dist") -> np.ndarray:
 
 
 def padded(dist) -> np.ndarray:
-    """The 14-coefficient form of any OpenCV coefficient vector (zeros appended)."""
+    """The 14-coefficient form of any OpenCV coefficient vector (zeros appended).
+
+    Parameters
+    ----------
+    dist : array_like
+        At most 14 coefficients in OpenCV's order (not checked: use :func:`as_coefficients` first).
+
+    Returns
+    -------
+    ndarray
+        ``(14,)`` float64, ``k1 k2 p1 p2 k3 k4 k5 k6 s1 s2 s3 s4 tau_x tau_y``.
+    """
     d = np.asarray(dist, np.float64).ravel()
     out = np.zeros(14)
     out[: d.size] = d
@@ -70,7 +99,18 @@ def padded(dist) -> np.ndarray:
 
 
 def model_size(dist) -> int:
-    """The shortest OpenCV layout (5, 8, 12 or 14) that holds every non-zero coefficient of ``dist``."""
+    """The shortest OpenCV layout (5, 8, 12 or 14) that holds every non-zero coefficient of ``dist``.
+
+    Parameters
+    ----------
+    dist : array_like
+        At most 14 coefficients in OpenCV's order.
+
+    Returns
+    -------
+    int
+        5, 8, 12 or 14 (5 also for all-zero or 4-coefficient input).
+    """
     d = padded(dist)
     nz = np.flatnonzero(d)
     last = int(nz[-1]) + 1 if nz.size else 0
@@ -80,6 +120,11 @@ def model_size(dist) -> int:
 @functools.lru_cache(maxsize=64)
 def tilt_matrix(tau_x: float, tau_y: float) -> tuple:
     """OpenCV's tilted-sensor projection (``computeTiltProjectionMatrix``) and its inverse.
+
+    Parameters
+    ----------
+    tau_x, tau_y : float
+        The sensor's tilt about the camera's x and y axes (rad); coefficients 13 and 14.
 
     Returns
     -------
@@ -112,6 +157,12 @@ def distort_xy(x, y, d, m):
         :func:`padded` coefficients.
     m : (3, 3) array
         The tilt matrix (:func:`tilt_matrix`); only used when ``tau_x`` or ``tau_y`` is non-zero.
+
+    Returns
+    -------
+    xd, yd : arrays or floats
+        Distorted normalized coordinates (unitless), of ``x``'s shape and dtype; the pixel
+        is ``K @ (xd, yd, 1)``.
     """
     r2 = x * x + y * y
     radial = (1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4]))) / (1.0 + r2 * (d[5] + r2 * (d[6] + r2 * d[7])))
@@ -128,7 +179,22 @@ def distort_xy(x, y, d, m):
 
 def untilt_xy(x, y, d, m_inv):
     """Distorted normalized coordinates on the tilted sensor -> on the ideal sensor plane (as OpenCV's
-    undistortion starts); the identity without tilt. ``m_inv`` is :func:`tilt_matrix`'s inverse."""
+    undistortion starts); the identity without tilt. ``m_inv`` is :func:`tilt_matrix`'s inverse.
+
+    Parameters
+    ----------
+    x, y : arrays or floats
+        Distorted normalized coordinates on the tilted sensor (unitless; ``K^-1`` of the pixel).
+    d : sequence of 14 floats
+        :func:`padded` coefficients; only ``tau_x, tau_y`` (``d[12], d[13]``) are read.
+    m_inv : (3, 3) array
+        The inverse tilt matrix (:func:`tilt_matrix`).
+
+    Returns
+    -------
+    x, y : arrays or floats
+        Distorted normalized coordinates on the ideal sensor plane (the inputs themselves without tilt).
+    """
     if d[12] == 0.0 and d[13] == 0.0:
         return x, y
     w = 1.0 / (m_inv[2, 0] * x + m_inv[2, 1] * y + m_inv[2, 2])
@@ -137,7 +203,23 @@ def untilt_xy(x, y, d, m_inv):
 
 def undistort_step(x, y, x0, y0, d):
     """One fixed-point step of OpenCV's undistortion: the ideal point whose distortion is ``x0, y0``
-    (untilted distorted normalized coordinates), refined from the estimate ``x, y``."""
+    (untilted distorted normalized coordinates), refined from the estimate ``x, y``.
+
+    Parameters
+    ----------
+    x, y : arrays or floats
+        The current estimate of the ideal normalized coordinates (unitless); start at ``x0, y0``.
+    x0, y0 : arrays or floats
+        The distorted normalized coordinates after :func:`untilt_xy` (unitless).
+    d : sequence of 14 floats
+        :func:`padded` coefficients (the tilt terms are not read here).
+
+    Returns
+    -------
+    x, y : arrays or floats
+        The next estimate (unitless). The iteration need not converge (strong pincushion):
+        :func:`undistort_normalized` checks and falls back to Newton steps.
+    """
     r2 = x * x + y * y
     icdist = (1.0 + r2 * (d[5] + r2 * (d[6] + r2 * d[7]))) / (1.0 + r2 * (d[0] + r2 * (d[1] + r2 * d[4])))
     xy2 = 2.0 * x * y
@@ -147,7 +229,21 @@ def undistort_step(x, y, x0, y0, d):
 
 
 def distort_normalized(xy: np.ndarray, dist) -> np.ndarray:
-    """Apply the distortion ``dist`` (any OpenCV count) to ideal normalized coordinates ``xy`` (n, 2)."""
+    """Apply the distortion ``dist`` (any OpenCV count) to ideal normalized coordinates ``xy`` (n, 2).
+
+    Parameters
+    ----------
+    xy : (n, 2) array
+        Ideal (pinhole) normalized coordinates ``(x/z, y/z)`` in the camera frame (unitless).
+    dist : array_like
+        4, 5, 8, 12 or 14 OpenCV coefficients.
+
+    Returns
+    -------
+    (n, 2) ndarray
+        Distorted normalized coordinates (unitless); a float64 copy of ``xy`` when all
+        coefficients are zero. A rational model's pole gives inf or NaN.
+    """
     d = padded(dist)
     if not np.any(d):
         return np.array(xy, dtype=np.float64, copy=True)

@@ -53,6 +53,25 @@ class EpipolarFrame:
 
     @classmethod
     def from_cameras(cls, cam_a, cam_b, reference_world_mm) -> "EpipolarFrame":
+        """The epipolar pencil of two cameras, ``phi = 0`` on the plane through ``reference_world_mm``.
+
+        Parameters
+        ----------
+        cam_a, cam_b : recon.camera.Camera
+            The two cameras; their optical centres (world frame, mm) fix the baseline.
+        reference_world_mm : (3,) array_like
+            A point (world frame, mm) whose epipolar plane gets ``phi = 0``, e.g. the robot
+            base; on the baseline itself a fixed world axis is used instead.
+
+        Returns
+        -------
+        EpipolarFrame
+
+        Raises
+        ------
+        ValueError
+            The cameras' optical centres coincide (closer than 1e-9 mm).
+        """
         ca, cb = cam_a.center_world_mm, cam_b.center_world_mm
         b = cb - ca
         nb = np.linalg.norm(b)
@@ -67,7 +86,18 @@ class EpipolarFrame:
         return cls(ca, cb, b, e1, e2)
 
     def phi(self, directions: np.ndarray) -> np.ndarray:
-        """Epipolar-plane angle (rad) of rays with world directions (n, 3)."""
+        """Epipolar-plane angle (rad) of rays with world directions (n, 3).
+
+        Parameters
+        ----------
+        directions : (n, 3) array
+            Ray directions (world frame, any length) from either optical centre.
+
+        Returns
+        -------
+        (n,) ndarray
+            ``phi`` in ``(-pi, pi]`` (rad); equal for the two cameras' rays through one 3D point.
+        """
         n = np.cross(self.baseline, directions)
         return np.arctan2(n @ self.e2, n @ self.e1)
 
@@ -109,6 +139,12 @@ def conditioning(xy_norm: np.ndarray, epipole_h: np.ndarray) -> np.ndarray:
         Curve samples in ideal normalized coordinates of one camera.
     epipole_h : (3,)
         The other camera's centre in this camera's frame (homogeneous epipole).
+
+    Returns
+    -------
+    (n,) ndarray
+        ``|sin|`` of the angle in [0, 1]: 0 where the curve runs along its epipolar line
+        (ill-conditioned match), 1 where it crosses it at right angles.
     """
     t = np.gradient(xy_norm, axis=0)
     t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-15)
@@ -120,7 +156,20 @@ def conditioning(xy_norm: np.ndarray, epipole_h: np.ndarray) -> np.ndarray:
 
 
 def monotonic(phi: np.ndarray, tolerance: float) -> int:
-    """+1 or -1 when ``phi`` runs one way (backsteps up to ``tolerance`` allowed), 0 otherwise."""
+    """+1 or -1 when ``phi`` runs one way (backsteps up to ``tolerance`` allowed), 0 otherwise.
+
+    Parameters
+    ----------
+    phi : (n,) array
+        Epipolar angles along an ordered curve (rad).
+    tolerance : float
+        Largest step back from the running extreme still counted as monotonic (rad).
+
+    Returns
+    -------
+    int
+        +1 (increasing from first to last), -1 (decreasing), or 0 (turns back, or fewer than 2 samples).
+    """
     if phi.size < 2:
         return 0
     direction = 1 if phi[-1] >= phi[0] else -1
@@ -136,6 +185,17 @@ def align_dp(phi_a, phi_b, frac_a, frac_b, phi_scale: float, frac_weight: float 
     (``frac`` = fraction of each curve's length, a weak prior that resolves
     stretches lying in one epipolar plane), over paths from (0, 0) to the last samples of both that advance in one
     or both curves at each step.
+
+    Parameters
+    ----------
+    phi_a, phi_b : (na,), (nb,) arrays
+        Epipolar angles along each ordered curve, base to tip (rad).
+    frac_a, frac_b : (na,), (nb,) arrays
+        Fraction of each curve's arc length at its samples (0 to 1).
+    phi_scale : float
+        Angle difference counted as one unit of cost (rad); must be > 0.
+    frac_weight : float
+        Weight of the arc-length prior, multiplied by ``n = max(na, nb)``.
 
     Returns
     -------

@@ -64,6 +64,11 @@ class MemoryBoundError(ValueError):
 def memory_limit_bytes() -> float:
     """The memory bound (bytes): ``CTR_BENCH_MEMORY_LIMIT_GB`` x 10^9, else :data:`DEFAULT_LIMIT_GB`.
 
+    Returns
+    -------
+    float
+        The limit in bytes (4e9 by default); read from the environment at each call.
+
     Raises
     ------
     MemoryBoundError
@@ -104,6 +109,16 @@ def render_bytes(width_px: int, height_px: int) -> float:
     """Peak memory (bytes) of rendering a twin scene of ``width_px`` x ``height_px`` sensors (both cameras).
 
     ~300 MB plus 200 bytes per sensor pixel (OSMesa; EGL needs ~150).
+
+    Parameters
+    ----------
+    width_px, height_px : int
+        One camera's sensor size (px); the law covers both cameras at that size.
+
+    Returns
+    -------
+    float
+        The estimate (bytes), independent of the frame count.
     """
     return _RENDER_BASE + _RENDER_BYTES_PER_PX * float(width_px) * float(height_px)
 
@@ -113,6 +128,18 @@ def reconstruction_bytes(width_px: int, height_px: int, n_background_frames: int
 
     ~260 MB plus, per pixel, 120 bytes and 14 bytes per background frame (the fast
     method; the paper method needs ~10 % less).
+
+    Parameters
+    ----------
+    width_px, height_px : int
+        One camera's frame size (px); the law covers both cameras at that size.
+    n_background_frames : int
+        Frames of the empty scene per camera (negative counts as 0).
+
+    Returns
+    -------
+    float
+        The estimate (bytes).
     """
     per_px = _RECON_BYTES_PER_PX + _RECON_BYTES_PER_PX_PER_BACKGROUND * max(int(n_background_frames), 0)
     return _RECON_BASE + per_px * float(width_px) * float(height_px)

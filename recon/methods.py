@@ -58,12 +58,33 @@ METHODS: dict = {
 
 
 def register_method(method: Method) -> None:
-    """Add a method to :data:`METHODS` (used by modules defining further methods)."""
+    """Add a method to :data:`METHODS` (used by modules defining further methods).
+
+    Parameters
+    ----------
+    method : Method
+        Registered under ``method.name``, replacing any method of that name.
+    """
     METHODS[method.name] = method
 
 
 def get_method(name: str) -> Method:
-    """The method called ``name``; ValueError lists the known ones."""
+    """The method called ``name``; ValueError lists the known ones.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`METHODS`, e.g. ``"paper"`` or ``"fast"`` (optional modules are imported first).
+
+    Returns
+    -------
+    Method
+
+    Raises
+    ------
+    ValueError
+        ``name`` is not registered; the message lists the known names.
+    """
     _load_optional_methods()
     try:
         return METHODS[name]
@@ -72,7 +93,30 @@ def get_method(name: str) -> Method:
 
 
 def prepare(name: str, rig, background_frames: dict, params=None):
-    """Prepare method ``name`` for a session; returns the per-frame callable."""
+    """Prepare method ``name`` for a session; returns the per-frame callable.
+
+    Parameters
+    ----------
+    name : str
+        The method's name (:func:`get_method`).
+    rig : RigCalibration
+        The calibrated cameras, by name (world frame, mm).
+    background_frames : dict of str to ndarray
+        Camera name -> ``(N, H, W)`` (or ``(N, H, W, 3)`` color) frames of the empty scene, gray levels 0-255.
+    params : dataclass, optional
+        The method's parameters (its ``params_type``); ``None`` uses the documented defaults.
+
+    Returns
+    -------
+    callable
+        ``reconstruct(frames)``: camera name -> image, returning the reconstruction (see the module
+        docstring) or raising :class:`recon.errors.FrameError` for a frame it cannot reconstruct.
+
+    Raises
+    ------
+    ValueError
+        Unknown ``name``, or what the method's own preparation raises for unusable backgrounds.
+    """
     m = get_method(name)
     return m.prepare(rig, background_frames, params if params is not None else m.params_type())
 

@@ -54,6 +54,19 @@ def seen_by_all(rig, points_world_mm) -> np.ndarray:
     Only those can be triangulated: where the robot's base is outside a view, the
     part of the backbone beyond the image border is seen by at most one camera
     and no method can recover it from the images.
+
+    Parameters
+    ----------
+    rig : RigCalibration
+        Every camera of it is checked (``rig.names``).
+    points_world_mm : array_like
+        Points (world frame, mm), any shape reshaped to ``(n, 3)``.
+
+    Returns
+    -------
+    (n,) bool ndarray
+        True where the point lies in front of every camera (z > 0 in its frame) and
+        projects inside its image.
     """
     P = np.asarray(points_world_mm, dtype=np.float64).reshape(-1, 3)
     seen = np.ones(len(P), bool)

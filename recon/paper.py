@@ -249,7 +249,18 @@ class Reconstruction:
 
 
 def camera_order(names) -> tuple:
-    """Carving order of camera names: ``side``, ``top``, then the rest as given."""
+    """Carving order of camera names: ``side``, ``top``, then the rest as given.
+
+    Parameters
+    ----------
+    names : iterable of str
+        The rig's camera names (e.g. ``rig.names``).
+
+    Returns
+    -------
+    tuple of str
+        The same names, ``side`` and ``top`` (those present) first.
+    """
     names = list(names)
     first = [n for n in ("side", "top") if n in names]
     return tuple(first + [n for n in names if n not in first])
@@ -330,6 +341,23 @@ def behind_base_pixels(camera, base_point_world_mm, insertion_axis_world, margin
     behind the base. None when the camera sees the axis foreshortened to less
     than a third of its length (the plane is then not seen edge-on) or the
     base is behind the camera.
+
+    Parameters
+    ----------
+    camera : recon.camera.Camera
+        Its pose, intrinsics and distortion place the base line in the image.
+    base_point_world_mm : (3,) array_like
+        The robot base (world frame, mm).
+    insertion_axis_world : (3,) array_like
+        Insertion direction (world frame, unit vector), pointing from the base to the tip.
+    margin_px : float
+        Pixels within this distance (px) behind the base line are kept.
+
+    Returns
+    -------
+    ndarray of int or None
+        Flat indices ``v * width + u`` into the ``(height, width)`` image, or None (see above,
+        or no pixel behind the line).
     """
     base = np.asarray(base_point_world_mm, float).reshape(3)
     axis = np.asarray(insertion_axis_world, float).reshape(3)
@@ -390,6 +418,22 @@ def silhouette_bridge_check(cameras, silhouettes, voxel_size_mm):
     continuous across a real gap. Points along the segment, every half voxel
     edge, may lie off a silhouette by a voxel's half-diagonal seen at their
     depth plus 1 px (the chord of a curved robot, the voxels' quantization).
+
+    Parameters
+    ----------
+    cameras : sequence of recon.camera.Camera
+        The cameras, in the order of ``silhouettes``.
+    silhouettes : sequence of (H, W) bool arrays
+        Each camera's silhouette (the camera's image size, px).
+    voxel_size_mm : float or (3,) array_like
+        The carving voxels' edge lengths (mm).
+
+    Returns
+    -------
+    callable
+        ``check(p, q) -> bool`` for two world points (3,) mm: False as soon as a sample of
+        the segment is behind a camera, outside its image or too far off its silhouette.
+        The distance transforms are computed on first use and kept.
     """
     voxel = np.broadcast_to(np.asarray(voxel_size_mm, float), (3,))
     half_diag = 0.5 * float(np.linalg.norm(voxel))
@@ -597,6 +641,19 @@ def base_borders(camera, base_point_world_mm) -> list:
     When the camera does not see where the tubes leave the actuation unit, the
     robot enters the image across the border on that side: its silhouette
     touching that border is expected, not the robot leaving the view.
+
+    Parameters
+    ----------
+    camera : recon.camera.Camera
+    base_point_world_mm : (3,) array_like
+        The robot base (world frame, mm).
+
+    Returns
+    -------
+    list of str
+        Among ``"left"``, ``"right"``, ``"top"``, ``"bottom"`` (in :data:`recon.silhouette.BORDERS`
+        order): where the base's projection, with or without distortion, lies beyond the
+        image's outer pixel edges; empty when it is inside or behind the camera.
     """
     p = np.asarray(base_point_world_mm, float).reshape(1, 3)
     pc = camera.world_to_camera(p)[0]

@@ -72,7 +72,13 @@ class RigCalibration:
 
     @property
     def names(self) -> list:
-        """Camera names in file order."""
+        """Camera names in file order.
+
+        Returns
+        -------
+        list of str
+            The keys of ``cameras``, e.g. ``["side", "top"]``.
+        """
         return list(self.cameras)
 
     def __getitem__(self, name: str) -> Camera:
@@ -82,6 +88,15 @@ class RigCalibration:
             raise UnknownCameraError(f"{self.source}: no camera {name!r} (has {', '.join(self.cameras)})") from None
 
     def to_dict(self) -> dict:
+        """The rig as the JSON-ready mapping a rig file holds (format, version, ``units: "mm"``).
+
+        Returns
+        -------
+        dict
+            ``cameras`` by name (:meth:`recon.camera.Camera.to_dict`: size px, ``K`` px,
+            ``dist``, ``T_cam_world`` world -> camera, mm), ``base_point_world_mm`` (world
+            frame, mm) and ``insertion_axis_world`` (unit vector, world frame), as lists.
+        """
         return {
             "format": _FORMAT,
             "version": FORMAT_VERSION,
@@ -99,6 +114,25 @@ class RigCalibration:
         one line naming ``source`` and the key: a missing or unknown key, a wrong type or
         shape, a non-finite number, a camera missing or named differently inside, or a
         calibration that the checks refuse.
+
+        Parameters
+        ----------
+        d : dict
+            The decoded JSON object of a rig file.
+        source : str
+            The file it came from, named in every message.
+        cameras : sequence of str, optional
+            Camera names the caller needs, e.g. ``("side", "top")``.
+
+        Returns
+        -------
+        RigCalibration
+            Validated; ``insertion_axis_world`` normalized to unit length.
+
+        Raises
+        ------
+        CalibrationError
+            One line naming ``source`` and the key (see above).
         """
         if not isinstance(d, dict):
             raise CalibrationError(f"{source}: must be a JSON object with a 'cameras' table, got {_kind(d)}")
@@ -204,7 +238,15 @@ def _camera_from_dict(cd, name: str, source: str) -> Camera:
 
 
 def save_rig_calibration(path, rig: RigCalibration) -> None:
-    """Write ``rig`` as JSON to ``path``."""
+    """Write ``rig`` as JSON to ``path``.
+
+    Parameters
+    ----------
+    path : path
+        The file written (indented JSON; its folder must exist).
+    rig : RigCalibration
+        Written as :meth:`RigCalibration.to_dict` gives it (mm, px).
+    """
     Path(path).write_text(json.dumps(rig.to_dict(), indent=2) + "\n")
 
 
@@ -216,6 +258,11 @@ def load_rig_calibration(path, cameras=None) -> RigCalibration:
     path : path
     cameras : sequence of str, optional
         Camera names the caller needs, e.g. ``("side", "top")``.
+
+    Returns
+    -------
+    RigCalibration
+        With ``source`` set to ``str(path)``.
 
     Raises
     ------

@@ -260,7 +260,15 @@ class SelfCheck:
     ms: float = 0.0
 
     def to_dict(self) -> dict:
-        """JSON-ready (NaN as None, figures rounded)."""
+        """JSON-ready (NaN as None, figures rounded).
+
+        Returns
+        -------
+        dict
+            ``ok`` (bool), ``reason`` (str or None), ``ms`` (wall time, ms, 3 decimals) and
+            ``views``: camera name -> the ``figures`` (px, fractions 0-1, contrast) rounded to
+            4 decimals, None where not measured or not finite.
+        """
         def r(v):
             return None if v is None or not math.isfinite(v) else round(float(v), 4)
 

@@ -131,6 +131,23 @@ def hysteresis_threshold(diff: np.ndarray, params: SilhouetteParams, max_differe
     levels: in a frame without the robot the normalizing peak is a jitter edge of
     a few gray levels, and a purely relative low threshold would grow broad
     sub-noise ripples of the backdrop into a "robot" reaching the image border.
+
+    Parameters
+    ----------
+    diff : (H, W) array
+        The normalized difference image (0 to 1; 1 is the frame's largest difference).
+    params : SilhouetteParams
+        ``hysteresis_sigma``, ``hysteresis_floor`` (normalized), ``hysteresis_floor_dn``
+        (gray levels) and ``threshold`` (normalized) are used.
+    max_difference_dn : float, optional
+        The difference (gray levels, 0-255 scale) that normalized to 1; None or <= 0: no
+        gray-level floor.
+
+    Returns
+    -------
+    float or None
+        The low threshold (normalized, below ``params.threshold``), or None when
+        ``hysteresis_sigma`` is 0 or the low threshold would reach the threshold itself.
     """
     if not params.hysteresis_sigma > 0:
         return None

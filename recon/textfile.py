@@ -22,6 +22,16 @@ def read_text(path, what: str, kind: str, error=ValueError) -> str:
         What a binary file is not, e.g. ``"rig calibration JSON file"``.
     error : type
         The exception raised (a ``ValueError`` subclass the CLI prints as one line).
+
+    Returns
+    -------
+    str
+        The file's whole text.
+
+    Raises
+    ------
+    error
+        The file is missing, not UTF-8, a directory or not readable; the message starts with ``path``.
     """
     path = Path(path)
     try:
@@ -35,7 +45,27 @@ def read_text(path, what: str, kind: str, error=ValueError) -> str:
 
 
 def parse_json(text: str, path, error=ValueError):
-    """``json.loads(text)``; invalid or too deeply nested JSON is ``error`` in one line naming ``path``."""
+    """``json.loads(text)``; invalid or too deeply nested JSON is ``error`` in one line naming ``path``.
+
+    Parameters
+    ----------
+    text : str
+        The JSON text (e.g. from :func:`read_text`).
+    path : path or str
+        The file it came from, named at the start of the error message.
+    error : type
+        The exception raised (a ``ValueError`` subclass the CLI prints as one line).
+
+    Returns
+    -------
+    object
+        The decoded JSON value (dict, list, str, number, bool or None).
+
+    Raises
+    ------
+    error
+        The text is not valid JSON (message gives the reason and line) or is nested too deeply.
+    """
     try:
         return json.loads(text)
     except json.JSONDecodeError as exc:

@@ -121,6 +121,21 @@ def radii_along(s_mm, transition_s_mm, outer_radius_mm: float, inner_radius_mm: 
 
     ``transition_s_mm`` is the arc length where the outer tube ends; None or NaN means
     unknown, and the whole backbone gets the outer radius.
+
+    Parameters
+    ----------
+    s_mm : array_like
+        Arc length of each backbone point from the base (mm), any shape.
+    transition_s_mm : float or None
+        Arc length where the outer tube ends (mm); None or NaN: unknown.
+    outer_radius_mm, inner_radius_mm : float
+        The tubes' radii (mm).
+
+    Returns
+    -------
+    ndarray
+        Radius per point (mm), float64 of ``s_mm``'s shape: ``outer_radius_mm`` up to and
+        at ``transition_s_mm``, ``inner_radius_mm`` beyond it.
     """
     s = np.asarray(s_mm, dtype=np.float64)
     r = np.full(s.shape, float(outer_radius_mm))
