@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .morphology import disk
+
 __all__ = [
     "CenterlineParams",
     "centerline_params_for",
@@ -273,11 +275,6 @@ def measure_edge_loss(silhouette: np.ndarray, params: CenterlineParams) -> float
     return float(losses[best[np.argmin(np.abs(losses[best] - prior))]])
 
 
-def _disk(radius_px: int) -> np.ndarray:
-    d = 2 * int(radius_px) + 1
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (d, d))
-
-
 def remove_small_regions(mask: np.ndarray, min_region_px: int, gap_px: int = 0) -> np.ndarray:
     """Zero the regions of ``mask`` smaller than ``min_region_px``.
 
@@ -297,7 +294,7 @@ def remove_small_regions(mask: np.ndarray, min_region_px: int, gap_px: int = 0) 
     (H, W) bool array
     """
     m = (mask > 0).view(np.uint8)
-    grouped = cv2.dilate(m, _disk((int(gap_px) + 1) // 2)) if gap_px > 0 else m
+    grouped = cv2.dilate(m, disk((int(gap_px) + 1) // 2)) if gap_px > 0 else m
     n, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(grouped, 8, cv2.CV_32S, cv2.CCL_GRANA)
     area = stats[:, cv2.CC_STAT_AREA] if gap_px <= 0 else np.bincount(labels[m > 0], minlength=n)
     keep = area >= min_region_px
@@ -383,7 +380,7 @@ def extract_centerline(
     pad = r_out + 2
     x0, y0, x1, y1 = max(x - pad, 0), max(y - pad, 0), min(x + w + pad, W), min(y + h + pad, H)
     crop = sil_u8[y0:y1, x0:x1]
-    large = _disk(r_out)
+    large = disk(r_out)
     # Default border (outside = foreground): a robot crossing an allowed image
     # border keeps its centerline up to the border.
     outer_line = cv2.erode(crop, large)
@@ -391,7 +388,7 @@ def extract_centerline(
     outer_keep = remove_small_regions(outer_line, params.min_region_px, gap)
     outer_region = cv2.dilate(outer_line, large)
     rest = cv2.subtract(crop, outer_region)
-    inner_line = cv2.erode(rest, _disk(r_in))
+    inner_line = cv2.erode(rest, disk(r_in))
     inner_keep = remove_small_regions(inner_line, params.min_region_px, gap)
     if not np.array_equal(outer_keep, outer_line.view(bool)):
         # Specks the large disk leaves where the inner tube is a little wider
@@ -401,7 +398,7 @@ def extract_centerline(
         # is added where it continues the inner line found above (not where
         # it is an isolated blob's core).
         rest_b = cv2.subtract(crop, cv2.dilate(outer_keep.view(np.uint8), large))
-        more = remove_small_regions(cv2.erode(rest_b, _disk(r_in)), params.min_region_px, gap)
+        more = remove_small_regions(cv2.erode(rest_b, disk(r_in)), params.min_region_px, gap)
         if inner_keep.any() and more.any():
             n, lab = cv2.connectedComponents(more.view(np.uint8), connectivity=8)
             touch = np.zeros(n, bool)
@@ -420,7 +417,7 @@ def _thin_ridge(crop, rest, inner_keep, r_in, params) -> np.ndarray:
     """Middle line of the parts of the silhouette crop explained by neither centerline (bool)."""
     # ``rest`` is the silhouette less the outer tube's region; less the inner
     # tube's region too, what is left is edge slivers and too-thin stretches.
-    inner_region = cv2.dilate(inner_keep.view(np.uint8), _disk(r_in))
+    inner_region = cv2.dilate(inner_keep.view(np.uint8), disk(r_in))
     left = cv2.subtract(rest, inner_region)
     if not left.any():
         return np.zeros(crop.shape, bool)

@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from .errors import FrameError
+from .morphology import disk
 
 __all__ = ["SilhouetteParams", "extract_silhouette", "hysteresis_threshold", "BORDERS"]
 
@@ -366,7 +367,7 @@ def _group_regions(binary: np.ndarray, labels: np.ndarray, stats: np.ndarray, ga
     ``binary`` only.
     """
     r = max(1, int(np.ceil(0.5 * gap_px)))
-    grown = cv2.dilate(binary, _disk(r))
+    grown = cv2.dilate(binary, disk(r))
     n, glab, gstats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(grown, 8, cv2.CV_32S, cv2.CCL_GRANA)
     on = binary.view(bool)
     area = np.bincount(glab[on], minlength=n)
@@ -391,11 +392,6 @@ def _half_width(labels: np.ndarray, stat, label: int, binary=None) -> float:
     return float(cv2.distanceTransform(crop, cv2.DIST_L2, cv2.DIST_MASK_5).max()) - 0.5
 
 
-def _disk(radius_px: int) -> np.ndarray:
-    d = 2 * int(radius_px) + 1
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (d, d))
-
-
 def _close_and_fill(region: np.ndarray, rect, close_px: int, fill: bool, max_hole_radius_px) -> np.ndarray:
     """Close ``region`` with a disk of ``close_px`` and fill its holes, on its bounding box only.
 
@@ -409,7 +405,7 @@ def _close_and_fill(region: np.ndarray, rect, close_px: int, fill: bool, max_hol
     canvas = np.zeros((h + 2 * pad, w + 2 * pad), np.uint8)
     canvas[pad : pad + h, pad : pad + w] = region[y : y + h, x : x + w]
     if close_px:
-        canvas = cv2.morphologyEx(canvas, cv2.MORPH_CLOSE, _disk(close_px), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        canvas = cv2.morphologyEx(canvas, cv2.MORPH_CLOSE, disk(close_px), borderType=cv2.BORDER_CONSTANT, borderValue=0)
     if fill:
         # Background reached from outside is 2; the holes stay 0.
         reach = canvas.copy()

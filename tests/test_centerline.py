@@ -1,6 +1,8 @@
 """Centerline extraction by two-disk erosion, with outer/inner labels."""
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from recon.camera import Camera, look_at
 from recon.centerline import INNER, OUTER, CenterlineParams, centerline_params_for, extract_centerline
@@ -170,6 +172,20 @@ def test_dashed_line_kept_speck_removed():
     kept = remove_small_regions(m, 10, gap_px=2)
     assert kept[20].sum() == 40 and not kept[5].any()
     assert not remove_small_regions(m, 10).any()
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), density=st.floats(0.05, 0.6), min_px=st.integers(1, 30))
+def test_small_regions_removed_as_skimage_removes_them(seed, density, min_px):
+    """With no gap, remove_small_regions (OpenCV's labels, kept for speed: docs/libraries.md) keeps
+    exactly the 8-connected regions that scikit-image's remove_small_objects keeps."""
+    from skimage.morphology import remove_small_objects
+
+    from recon.centerline import remove_small_regions
+
+    m = (np.random.default_rng(seed).random((60, 80)) < density).astype(np.uint8)
+    expected = remove_small_objects(m.astype(bool), max_size=min_px - 1, connectivity=2)
+    assert np.array_equal(remove_small_regions(m, min_px), expected)
 
 
 def test_thin_stretch_bridged():
