@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["clean_polyline", "tangents", "transport_frames", "tube_mesh", "radii_along"]
+__all__ = ["clean_polyline", "tangents", "transport_frames", "tube_mesh", "swept_rings", "radii_along"]
 
 
 def clean_polyline(points, min_step: float = 1e-9) -> np.ndarray:
@@ -184,7 +184,39 @@ def tube_mesh(points, radius, sides: int = 16, caps: bool = True) -> tuple:
         raise ValueError("tube_mesh: need at least two distinct backbone points")
     if np.any(r <= 0) or not np.all(np.isfinite(r)):
         raise ValueError("tube_mesh: radius must be positive and finite")
-    F = transport_frames(P)
+    return swept_rings(P, transport_frames(P), r, sides, caps)
+
+
+def swept_rings(points_mm, frames, radius_mm, sides: int, caps: bool = True) -> tuple:
+    """Triangles of rings of ``radius_mm`` swept along ``points_mm`` in the given cross-section frames.
+
+    The one owner of the tube's triangulation: :func:`tube_mesh` (transported frames) and the
+    twin's tube meshes (its backbone's body frames) both call it.
+
+    Parameters
+    ----------
+    points_mm : (n, 3) float array
+        Centre line, n >= 2 distinct points (mm, any frame).
+    frames : (n, 3, 3) float array
+        Per point, a rotation whose columns 0 and 1 span the cross-section and whose column 2
+        is the tangent (same frame as the points).
+    radius_mm : float or (n,) float array
+        Radius of each ring (mm).
+    sides : int
+        Vertices per ring (>= 3).
+    caps : bool
+        Close both ends with a fan around the end point (watertight mesh).
+
+    Returns
+    -------
+    vertices : (m, 3) float64
+        ``sides`` vertices per ring, ring after ring, then (with caps) the two end centres.
+    faces : (k, 3) int64
+        Triangles with outward normals.
+    """
+    P = np.asarray(points_mm, dtype=np.float64)
+    F = np.asarray(frames, dtype=np.float64)
+    r = np.broadcast_to(np.asarray(radius_mm, dtype=np.float64), (len(P),))
     phi = np.linspace(0.0, 2.0 * np.pi, sides, endpoint=False)
     ring = np.cos(phi)[None, :, None] * F[:, None, :, 0] + np.sin(phi)[None, :, None] * F[:, None, :, 1]
     verts = (P[:, None, :] + r[:, None, None] * ring).reshape(-1, 3)

@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from recon.tubemesh import swept_rings
+
 from .robot import Backbone, Joints, Robot
 
 __all__ = ["tube_meshes", "swept_tube", "sample_backbone", "box_mesh", "cylinder_mesh", "plane_mesh"]
@@ -52,25 +54,7 @@ def swept_tube(points_mm: np.ndarray, frames: np.ndarray, radius_mm: float, side
     trimesh.Trimesh
         Watertight, outward-facing mesh.
     """
-    n = len(points_mm)
-    phi = np.linspace(0.0, 2.0 * np.pi, sides, endpoint=False)
-    ring = np.cos(phi)[None, :, None] * frames[:, None, :, 0] + np.sin(phi)[None, :, None] * frames[:, None, :, 1]
-    verts = (points_mm[:, None, :] + radius_mm * ring).reshape(-1, 3)
-    k = np.arange(n - 1)[:, None]
-    j = np.arange(sides)[None, :]
-    a = k * sides + j
-    b = k * sides + (j + 1) % sides
-    c = a + sides
-    d = b + sides
-    # (x, y, tangent) is right-handed, so (a, b, d) and (a, d, c) face outwards.
-    side_faces = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
-    start, end = n * sides, n * sides + 1
-    jj = np.arange(sides)
-    cap0 = np.stack([np.full(sides, start), (jj + 1) % sides, jj], axis=1)
-    last = (n - 1) * sides
-    cap1 = np.stack([np.full(sides, end), last + jj, last + (jj + 1) % sides], axis=1)
-    verts = np.concatenate([verts, points_mm[:1], points_mm[-1:]])
-    faces = np.concatenate([side_faces, cap0, cap1])
+    verts, faces = swept_rings(points_mm, frames, radius_mm, sides)
     return trimesh.Trimesh(vertices=verts, faces=faces, process=False)
 
 
