@@ -8,12 +8,13 @@ must be > 0, got -1``), and an unknown key is an error.
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
     import tomli as tomllib
+
+from recon.textfile import read_text
 
 __all__ = ["SceneError", "Table", "REQUIRED", "POSITIVE", "NONNEGATIVE", "read_toml"]
 
@@ -122,13 +123,8 @@ NONNEGATIVE = (lambda v: v >= 0, "must be >= 0")
 
 def read_toml(path, what: str, error=SceneError) -> dict:
     """Parse a TOML file; ``error`` (one line) names the file and says whether it is missing, unreadable or not TOML."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise error(f"{path}: {what} not found") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise error(f"{path}: cannot read {what} ({exc.__class__.__name__})") from None
+    role = what.removesuffix(" file")
+    text = read_text(path, role, f"{role} TOML file", error)
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

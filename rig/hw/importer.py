@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from recon.calibration import IMAGE_SUFFIXES
+from recon.textfile import read_text
 from rig.hw.camera import CameraError, to_mono
 from rig.session import SessionWriter, atomic_write_bytes
 from twin.robot import Joints
@@ -380,12 +381,7 @@ def load_joints_csv(path, n_tubes: int | None = None) -> JointTable:
     """
     path = Path(path)
     src = str(path)
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
-        raise ImportInputError(f"{src}: joints file not found (--joints)") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as exc:
-        raise ImportInputError(f"{src}: cannot read the joints file ({exc.__class__.__name__})") from None
+    text = read_text(path, "joints", "joints CSV file", ImportInputError)
     reader = csv.DictReader(io.StringIO(text))
     cols = [c.strip() for c in reader.fieldnames or []]
     reader.fieldnames = cols
