@@ -8,7 +8,10 @@ from ._lazy import lazy_exports
 
 #: Public name -> module that owns it (loaded on first use: importing the package alone does not pull in numba and the methods).
 _EXPORTS = {
-    "Camera": "recon.camera", "invert_transform": "recon.camera",
+    "Camera": "recon.camera",
+    "invert_transform": "recon.geometry", "compose": "recon.geometry", "transform_points": "recon.geometry",
+    "look_at": "recon.geometry", "arc_length": "recon.geometry", "resample_polyline": "recon.geometry",
+    "closest_arc_length": "recon.geometry",
     "RigCalibration": "recon.rigcal", "load_rig_calibration": "recon.rigcal", "save_rig_calibration": "recon.rigcal",
     "FrameError": "recon.errors",
     "METHODS": "recon.methods", "get_method": "recon.methods", "prepare": "recon.methods", "register_method": "recon.methods",

@@ -36,9 +36,10 @@ from scipy.spatial import cKDTree
 
 from .centerline import INNER, OUTER
 from .errors import FrameError
+from .geometry import arc_length, points_at_arc_length, resample_polyline
 
-__all__ = ["BackboneParams", "ReconstructedBackbone", "order_backbone", "resample_polyline", "arc_length", "back_to_border",
-           "back_to_base_plane", "MAX_BORDER_EXTENSION_PX"]
+__all__ = ["BackboneParams", "ReconstructedBackbone", "order_backbone", "back_to_border", "back_to_base_plane",
+           "MAX_BORDER_EXTENSION_PX"]
 
 #: Longest straight continuation (px, in the view where it is longest) of a backbone back to the image border.
 MAX_BORDER_EXTENSION_PX = 48.0
@@ -127,15 +128,35 @@ class ReconstructedBackbone:
 
 
 def back_to_base_plane(x0_mm, t0, base_point_world_mm, insertion_axis_world, max_gap_mm: float, step_mm: float) -> np.ndarray:
-    """Points (k, 3) continuing ``x0_mm`` straight back along ``-t0`` to the base plane (world, mm).
+    """Points continuing ``x0_mm`` straight back along ``-t0`` to the base plane.
 
     The base plane passes through the base point, across the insertion axis:
     where the robot leaves its actuation unit. A backbone starts a little in
     front of it (the images are cut behind it, and a centerline ends short of
     a cut); the robot goes on straight to it. Only when ``t0`` points away
     from the plane (cosine with the axis over 0.3) and the way back is at most
-    ``max_gap_mm``; every ``step_mm`` or finer, farthest point (on the plane)
-    first, ``x0_mm`` excluded; empty otherwise.
+    ``max_gap_mm``.
+
+    Parameters
+    ----------
+    x0_mm : (3,) array
+        The backbone's first point (world, mm).
+    t0 : (3,) array
+        Its tangent, pointing along the backbone (world; any length).
+    base_point_world_mm : (3,) array
+        A point of the base plane (world, mm).
+    insertion_axis_world : (3,) array
+        Unit normal of the base plane, along the insertion (world).
+    max_gap_mm : float
+        Longest way back (mm).
+    step_mm : float
+        Largest spacing of the points (mm).
+
+    Returns
+    -------
+    (k, 3) float64 array
+        Points (world, mm) every ``step_mm`` or finer, farthest (on the plane) first, ``x0_mm``
+        excluded; empty (0, 3) when the conditions above do not hold.
     """
     x0 = np.asarray(x0_mm, np.float64)
     t0 = np.asarray(t0, np.float64) / np.linalg.norm(t0)
@@ -150,15 +171,33 @@ def back_to_base_plane(x0_mm, t0, base_point_world_mm, insertion_axis_world, max
 
 
 def back_to_border(rig, names, x0_mm, t0, step_mm: float) -> np.ndarray:
-    """Points (k, 3) continuing ``x0_mm`` straight back along ``-t0`` until one camera's image ends (world, mm).
+    """Points continuing ``x0_mm`` straight back along ``-t0`` until one camera's image ends.
 
     Where the robot enters across the image border, a method's backbone stops
-    short of it by about its image window; the robot goes on straight there.
-    Every ``step_mm``, while each of ``names`` sees the point in its image; at
-    most :data:`MAX_BORDER_EXTENSION_PX` in the view where the continuation is
+    short of it by about its image window; the robot goes on straight there:
+    while each of ``names`` sees the point in its image, at most
+    :data:`MAX_BORDER_EXTENSION_PX` in the view where the continuation is
     longest, never behind the base plane (through ``rig.base_point_world_mm``,
-    across ``rig.insertion_axis_world``). Farthest point first, ``x0_mm``
-    excluded; empty when the first step already leaves a view.
+    across ``rig.insertion_axis_world``).
+
+    Parameters
+    ----------
+    rig : RigCalibration
+        The calibrated cameras, base point and insertion axis (world, mm).
+    names : iterable of str
+        The cameras that must see each point.
+    x0_mm : (3,) array
+        The backbone's first point (world, mm).
+    t0 : (3,) array
+        Its tangent, pointing along the backbone (world; any length).
+    step_mm : float
+        Spacing of the points (mm).
+
+    Returns
+    -------
+    (k, 3) float64 array
+        Points (world, mm) every ``step_mm``, farthest first, ``x0_mm`` excluded; empty (0, 3) when
+        the first step already leaves a view.
     """
     x0 = np.asarray(x0_mm, np.float64)
     t0 = np.asarray(t0, np.float64) / np.linalg.norm(t0)
@@ -179,33 +218,6 @@ def back_to_border(rig, names, x0_mm, t0, step_mm: float) -> np.ndarray:
         inside &= (z > 0) & cam.in_image(np.nan_to_num(uv, nan=-1e9), margin_px=0.5)  # pixel centres 0 .. size - 1
     k = d.size if inside.all() else int(np.argmin(inside))
     return pts[:k][::-1]
-
-
-def arc_length(points: np.ndarray) -> np.ndarray:
-    """Cumulative arc length (m,) of a polyline (m, d), starting at 0."""
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    return np.concatenate([[0.0], np.cumsum(seg)])
-
-
-def resample_polyline(points: np.ndarray, step: float) -> np.ndarray:
-    """Points every ``step`` along a polyline (m, d), first and last kept.
-
-    Parameters
-    ----------
-    points : (m, d) array
-    step : float
-        Arc-length step, in the units of ``points``.
-
-    Returns
-    -------
-    (k, d) array
-    """
-    s = arc_length(points)
-    if s[-1] <= 0.0:
-        return points[:1].copy()
-    n = max(1, int(np.ceil(s[-1] / step - 1e-9)))
-    t = np.minimum(np.arange(n + 1) * step, s[-1])
-    return np.stack([np.interp(t, s, points[:, c]) for c in range(points.shape[1])], axis=1)
 
 
 def _voxel_size(voxels: np.ndarray) -> np.ndarray:
@@ -461,7 +473,8 @@ def order_backbone(
         Insertion direction (world). Breaks the tie when both ends are about
         equally near the base point: the base end is the one further back
         along the axis.
-    params : BackboneParams
+    params : BackboneParams, optional
+        Output step, cell linking, binning, refinement and bridging.
     voxel_size_mm : float or (3,) array, optional
         Voxel edge per axis (mm); estimated from the coordinates if omitted.
     bridge_check : callable(p, q) -> bool, optional
@@ -505,8 +518,7 @@ def order_backbone(
     if np.isnan(s_t):
         p_t = np.full(3, np.nan)
     else:
-        s_pts = arc_length(points)
-        p_t = np.array([np.interp(s_t, s_pts, points[:, c]) for c in range(3)])
+        p_t = points_at_arc_length(points, np.array([s_t]))[0]
     return ReconstructedBackbone(
         points_mm=points,
         tip_mm=points[-1].copy(),

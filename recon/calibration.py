@@ -41,8 +41,9 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.spatial.transform import Rotation
 
-from .camera import Camera, invert_transform
+from .camera import Camera
 from .distortion import COEFFICIENT_NAMES, MODEL_SIZES, distort_xy, padded, tilt_matrix
+from .geometry import invert_transform
 from .rigcal import RigCalibration
 
 __all__ = [

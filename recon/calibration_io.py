@@ -51,8 +51,9 @@ import numpy as np
 import yaml
 
 from .calibration_check import CalibrationError, camera_matrix_problem, rotation_problem
-from .camera import Camera, invert_transform
+from .camera import Camera
 from .distortion import as_coefficients, model_size
+from .geometry import invert_transform
 from .rigcal import RigCalibration
 
 __all__ = [

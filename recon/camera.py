@@ -10,7 +10,8 @@ Conventions
   top-left pixel (OpenCV convention), u to the right, v down.
 * Camera frame: OpenCV (x right, y down, z forward).
 * ``T_cam_world`` is the 4x4 homogeneous transform that maps world points (mm)
-  into the camera frame (mm): ``X_cam = T_cam_world @ X_world``.
+  into the camera frame (mm): ``X_cam = T_cam_world @ X_world``; :mod:`recon.geometry` builds,
+  inverts, chains and applies such transforms.
 * Distortion coefficients ``dist`` as in OpenCV: ``k1 k2 p1 p2 [k3 [k4 k5 k6 [s1 s2 s3 s4
   [tau_x tau_y]]]]`` (5, 8, 12 or 14 values; 4 gain ``k3 = 0``).
 """
@@ -21,15 +22,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .distortion import as_coefficients, distort_normalized, padded, tilt_matrix, undistort_normalized
+from .geometry import invert_transform, transform_directions, transform_points
 
-__all__ = [
-    "Camera",
-    "distort_normalized",
-    "undistort_normalized",
-    "look_at",
-    "rotation_matrix",
-    "invert_transform",
-]
+__all__ = ["Camera", "distort_normalized", "undistort_normalized"]
 
 
 def _as_points(points, dim: int, name: str) -> np.ndarray:
@@ -39,49 +34,6 @@ def _as_points(points, dim: int, name: str) -> np.ndarray:
     if arr.ndim != 2 or arr.shape[1] != dim:
         raise ValueError(f"{name} must have shape (n, {dim}), got {np.shape(points)}")
     return arr
-
-
-def invert_transform(T: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid 4x4 transform: ``T_a_b -> T_b_a`` (mm)."""
-    T = np.asarray(T, dtype=np.float64)
-    R = T[:3, :3]
-    out = np.eye(4)
-    out[:3, :3] = R.T
-    out[:3, 3] = -R.T @ T[:3, 3]
-    return out
-
-
-def rotation_matrix(axis, angle_rad: float) -> np.ndarray:
-    """Rotation matrix (3x3) about ``axis`` by ``angle_rad`` (Rodrigues)."""
-    axis = np.asarray(axis, dtype=np.float64)
-    n = np.linalg.norm(axis)
-    if n == 0.0:
-        return np.eye(3)
-    k = axis / n
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(angle_rad) * K + (1.0 - np.cos(angle_rad)) * (K @ K)
-
-
-def look_at(eye_world_mm, target_world_mm, down_world) -> np.ndarray:
-    """``T_cam_world`` of a camera at ``eye`` looking at ``target``.
-
-    The camera z axis points from eye to target and its y axis (image down) is
-    as close as possible to ``down_world``.
-    """
-    eye = np.asarray(eye_world_mm, dtype=np.float64)
-    z = np.asarray(target_world_mm, dtype=np.float64) - eye
-    z /= np.linalg.norm(z)
-    down = np.asarray(down_world, dtype=np.float64)
-    y = down - np.dot(down, z) * z
-    if np.linalg.norm(y) < 1e-9:
-        raise ValueError("look_at: 'down' is parallel to the viewing direction")
-    y /= np.linalg.norm(y)
-    x = np.cross(y, z)
-    R_world_cam = np.stack([x, y, z], axis=1)
-    T_world_cam = np.eye(4)
-    T_world_cam[:3, :3] = R_world_cam
-    T_world_cam[:3, 3] = eye
-    return invert_transform(T_world_cam)
 
 
 @dataclass(frozen=True, eq=False)
@@ -133,36 +85,89 @@ class Camera:
     # ------------------------------------------------------------ distortion
     @property
     def dist14(self) -> np.ndarray:
-        """The distortion as all 14 OpenCV coefficients (zeros appended), read-only."""
+        """The distortion as all 14 OpenCV coefficients.
+
+        Returns
+        -------
+        (14,) float64 array
+            ``dist`` with zeros appended, read-only.
+        """
         return self._d14
 
     @property
     def tilt(self) -> tuple:
-        """The tilted-sensor matrix and its inverse (:func:`recon.distortion.tilt_matrix`)."""
+        """The tilted-sensor matrices (:func:`recon.distortion.tilt_matrix`).
+
+        Returns
+        -------
+        tuple of two (3, 3) arrays
+            The tilt matrix of ``tau_x, tau_y`` and its inverse.
+        """
         return tilt_matrix(float(self._d14[12]), float(self._d14[13]))
 
     # ------------------------------------------------------------------ pose
     @property
     def T_world_cam(self) -> np.ndarray:
-        """Camera (mm) -> world (mm)."""
+        """The camera's pose in the world.
+
+        Returns
+        -------
+        (4, 4) float64 array
+            ``T_world_cam`` (mm): camera frame -> world.
+        """
         return invert_transform(self.T_cam_world)
 
     @property
     def center_world_mm(self) -> np.ndarray:
-        """Optical centre in world coordinates (mm)."""
+        """The optical centre.
+
+        Returns
+        -------
+        (3,) float64 array
+            Optical centre (world, mm).
+        """
         return self.T_world_cam[:3, 3]
 
     @property
     def image_size(self) -> tuple[int, int]:
-        """``(width, height)`` in pixels."""
+        """The image size.
+
+        Returns
+        -------
+        tuple of (int, int)
+            ``(width, height)`` (px).
+        """
         return (self.width, self.height)
 
     def with_pose(self, T_cam_world: np.ndarray) -> "Camera":
-        """The same camera at another pose."""
+        """The same camera at another pose.
+
+        Parameters
+        ----------
+        T_cam_world : (4, 4) array
+            The new pose: world -> camera (mm).
+
+        Returns
+        -------
+        Camera
+            Same intrinsics and distortion, posed at ``T_cam_world``.
+        """
         return replace(self, T_cam_world=np.asarray(T_cam_world, dtype=np.float64))
 
     def scaled(self, factor: float) -> "Camera":
-        """The same camera with an image ``factor`` times larger (resolution studies)."""
+        """The same camera with an image ``factor`` times larger (resolution studies).
+
+        Parameters
+        ----------
+        factor : float
+            Scale of the image size and of the focal lengths (> 0).
+
+        Returns
+        -------
+        Camera
+            Same pose and distortion; ``K`` scaled so that pixel centres stay on integer coordinates,
+            image size rounded to whole px.
+        """
         K = self.K.copy()
         K[:2, :] *= factor
         # pixel centres stay at integer coordinates: (c + 0.5) * f - 0.5
@@ -171,29 +176,49 @@ class Camera:
         return replace(self, K=K, width=int(round(self.width * factor)), height=int(round(self.height * factor)))
 
     def mm_per_pixel_at(self, point_world_mm) -> float:
-        """Footprint of one pixel (mm) at the depth of a world point."""
-        p = _as_points(point_world_mm, 3, "point_world_mm")
-        z = (self.T_cam_world[:3, :3] @ p.T + self.T_cam_world[:3, 3:4])[2, 0]
+        """Footprint of one pixel at the depth of a world point.
+
+        Parameters
+        ----------
+        point_world_mm : (3,) or (1, 3) array
+            The point (world, mm); of several, the first.
+
+        Returns
+        -------
+        float
+            mm per px at the point's depth (camera z over the geometric mean focal length).
+        """
+        z = self.world_to_camera(point_world_mm)[0, 2]
         return float(z / np.sqrt(self.K[0, 0] * self.K[1, 1]))
 
     # ------------------------------------------------------------ projection
     def world_to_camera(self, points_world_mm) -> np.ndarray:
-        """World points (n, 3) mm -> camera frame (n, 3) mm."""
-        p = _as_points(points_world_mm, 3, "points_world_mm")
-        return p @ self.T_cam_world[:3, :3].T + self.T_cam_world[:3, 3]
+        """World points in the camera frame.
+
+        Parameters
+        ----------
+        points_world_mm : (n, 3) or (3,) array
+            Points (world, mm).
+
+        Returns
+        -------
+        (n, 3) float64 array
+            The points in the camera frame (mm, OpenCV axes).
+        """
+        return transform_points(self.T_cam_world, _as_points(points_world_mm, 3, "points_world_mm"))
 
     def project(self, points_world_mm) -> tuple[np.ndarray, np.ndarray]:
         """Project world points into the image, with distortion.
 
         Parameters
         ----------
-        points_world_mm : (n, 3) array
+        points_world_mm : (n, 3) or (3,) array
             World points (mm).
 
         Returns
         -------
         uv : (n, 2) array
-            Pixel coordinates; NaN for points at or behind the camera.
+            Pixel coordinates (image frame, px); NaN for points at or behind the camera.
         depth_mm : (n,) array
             z in the camera frame (mm).
         """
@@ -205,14 +230,36 @@ class Camera:
         return self.normalized_to_pixels(distort_normalized(xy, self.dist)), z
 
     def normalized_to_pixels(self, xy: np.ndarray) -> np.ndarray:
-        """Distorted normalized coordinates -> pixels."""
+        """Distorted normalized coordinates -> pixels.
+
+        Parameters
+        ----------
+        xy : (n, 2) array
+            Distorted normalized image coordinates (camera frame, x/z and y/z after distortion).
+
+        Returns
+        -------
+        (n, 2) float64 array
+            Pixel coordinates (image frame, px).
+        """
         K = self.K
         u = K[0, 0] * xy[:, 0] + K[0, 1] * xy[:, 1] + K[0, 2]
         v = K[1, 1] * xy[:, 1] + K[1, 2]
         return np.stack([u, v], axis=1)
 
     def pixels_to_normalized(self, uv) -> np.ndarray:
-        """Pixels -> ideal (undistorted) normalized coordinates x/z, y/z."""
+        """Pixels -> ideal (undistorted) normalized coordinates.
+
+        Parameters
+        ----------
+        uv : (n, 2) or (2,) array
+            Distorted pixel coordinates (image frame, px).
+
+        Returns
+        -------
+        (n, 2) float64 array
+            Undistorted normalized coordinates x/z, y/z (camera frame).
+        """
         uv = _as_points(uv, 2, "uv")
         K = self.K
         y = (uv[:, 1] - K[1, 2]) / K[1, 1]
@@ -220,28 +267,56 @@ class Camera:
         return undistort_normalized(np.stack([x, y], axis=1), self.dist)
 
     def undistort_pixels(self, uv) -> np.ndarray:
-        """Distorted pixels -> pixels of the ideal pinhole camera with the same K."""
+        """Distorted pixels -> pixels of the ideal pinhole camera with the same K.
+
+        Parameters
+        ----------
+        uv : (n, 2) or (2,) array
+            Distorted pixel coordinates (image frame, px).
+
+        Returns
+        -------
+        (n, 2) float64 array
+            Undistorted pixel coordinates (px).
+        """
         xy = self.pixels_to_normalized(uv)
         return self.normalized_to_pixels(xy)
 
     def rays(self, uv) -> tuple[np.ndarray, np.ndarray]:
         """Back-project pixels to world rays.
 
+        Parameters
+        ----------
+        uv : (n, 2) or (2,) array
+            Distorted pixel coordinates (image frame, px).
+
         Returns
         -------
         origin_world_mm : (3,) array
-            Optical centre (mm).
+            Optical centre (world, mm).
         directions_world : (n, 3) array
             Unit ray directions in the world frame.
         """
         xy = self.pixels_to_normalized(uv)
         d_cam = np.concatenate([xy, np.ones((xy.shape[0], 1))], axis=1)
         d_cam /= np.linalg.norm(d_cam, axis=1, keepdims=True)
-        d_world = d_cam @ self.T_world_cam[:3, :3].T
-        return self.center_world_mm, d_world
+        return self.center_world_mm, transform_directions(self.T_world_cam, d_cam)
 
     def in_image(self, uv: np.ndarray, margin_px: float = 0.0) -> np.ndarray:
-        """Boolean mask of pixel coordinates inside the image (with a margin)."""
+        """Which pixel coordinates lie inside the image, a margin in from its border.
+
+        Parameters
+        ----------
+        uv : (n, 2) array
+            Pixel coordinates (image frame, px).
+        margin_px : float, optional
+            Distance (px) inside the image's outer edge (which lies 0.5 px outside the border pixels' centres).
+
+        Returns
+        -------
+        (n,) bool array
+            True where inside.
+        """
         u = uv[:, 0]
         v = uv[:, 1]
         return (
@@ -253,7 +328,13 @@ class Camera:
 
     # ---------------------------------------------------------- (de)serialize
     def to_dict(self) -> dict:
-        """JSON-ready description (lists, mm, pixels)."""
+        """JSON-ready description of the camera.
+
+        Returns
+        -------
+        dict
+            ``name``, ``width``, ``height`` (px), ``K`` (px), ``dist`` and ``T_cam_world`` (mm) as lists.
+        """
         return {
             "name": self.name,
             "width": self.width,
@@ -265,7 +346,24 @@ class Camera:
 
     @classmethod
     def from_dict(cls, d: dict, name: str | None = None) -> "Camera":
-        """Inverse of :meth:`to_dict`; raises ``ValueError`` naming a missing key."""
+        """Inverse of :meth:`to_dict`.
+
+        Parameters
+        ----------
+        d : dict
+            ``width``, ``height``, ``K``, ``T_cam_world`` (mm) and optionally ``dist`` and ``name``.
+        name : str, optional
+            Camera name, overriding ``d["name"]``.
+
+        Returns
+        -------
+        Camera
+
+        Raises
+        ------
+        ValueError
+            A required key is missing (named in the message).
+        """
         for key in ("width", "height", "K", "T_cam_world"):
             if key not in d:
                 raise ValueError(f"camera {name or d.get('name', '?')!r}: missing key {key!r}")

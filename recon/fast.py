@@ -35,15 +35,16 @@ import numpy as np
 
 from ._kernels import project_nb, rays_nb
 from .background import EigenBackground, EigenBackgroundParams, fit_eigenbackground, to_gray
-from .backbone import arc_length, back_to_base_plane, back_to_border
+from .backbone import back_to_base_plane, back_to_border
 from .carving import rig_center
 from .distortion import undistort_normalized
 from .epipolar import EpipolarFrame, align_dp, conditioning, monotonic, triangulate_rays
 from .errors import FrameError
+from .geometry import arc_length, interp_rows, resample_polyline
 from .methods import Method, register_method
 from .paper import camera_order
 from .rigcal import RigCalibration
-from .subpixel import ViewCenterline, ViewModel, ViewParams, extract_view, fit_curve, interp_rows, prepare_view, resample_arc
+from .subpixel import ViewCenterline, ViewModel, ViewParams, extract_view, fit_curve, prepare_view
 from .temporal import JumpLimits, jump_check
 
 __all__ = ["FastParams", "FastModel", "FastReconstruction", "prepare_fast", "FastReconstructor"]
@@ -833,7 +834,7 @@ def _backbone(model: FastModel, params: FastParams, views: dict, m: _Matched, s_
     dense = spl(np.linspace(q[0], q[-1], max(8, int(m.chord / fine))))
     dense, base_ext = _to_base(model, params, dense, spl.derivative()(q[0]), fine)
     dense = _to_tip(model, views, params, dense, spl.derivative()(q[-1]), s_tr, fine)
-    points = resample_arc(dense, params.output_step_mm, spread=True)[0]
+    points = resample_polyline(dense, params.output_step_mm, mode="spread")
     return points, _transition(((a, m.s_a, m.ca), (b, m.s_b, m.cb)), s_tr, q, spl, base_ext, points)
 
 

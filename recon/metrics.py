@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .backbone import arc_length
+from .geometry import arc_length
 
 __all__ = ["backbone_errors", "point_to_polyline_distances", "seen_by_all"]
 

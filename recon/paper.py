@@ -29,11 +29,12 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from .backbone import BackboneParams, arc_length, back_to_base_plane, back_to_border, order_backbone, resample_polyline
+from .backbone import BackboneParams, back_to_base_plane, back_to_border, order_backbone
 from .background import EigenBackgroundParams, difference_image, fit_eigenbackground, to_gray
 from .carving import CarvingParams, bounding_box, carve
 from .centerline import CenterlineParams, centerline_params_for, extract_centerline
 from .errors import FrameError
+from .geometry import arc_length, resample_polyline
 from .rigcal import RigCalibration
 from .silhouette import BORDERS, SilhouetteParams, extract_silhouette, hysteresis_threshold
 from .subvoxel import SubvoxelParams, refine_backbone

@@ -65,9 +65,9 @@ from ._kernels import (
     spline_robust_nb,
     tip_along_axis_nb,
 )
-from .backbone import arc_length
 from .background import no_picture, to_gray
 from .errors import FrameError
+from .geometry import resample_arc
 
 __all__ = [
     "ViewParams",
@@ -82,8 +82,6 @@ __all__ = [
     "fit_curve",
     "UniformSpline",
     "extract_view",
-    "interp_rows",
-    "resample_arc",
 ]
 
 _BORDER_NAMES = ("left", "top", "right", "bottom")
@@ -260,7 +258,13 @@ class ViewModel:
 
     @property
     def coarse_shape(self) -> tuple:
-        """``(Hc, Wc)``: the coarse image's size (coarse px), ``shape`` floor-divided by ``factor``."""
+        """``(Hc, Wc)``: the coarse image's size (coarse px), ``shape`` floor-divided by ``factor``.
+
+        Returns
+        -------
+        tuple of int
+            Rows and columns of the coarse image (coarse px).
+        """
         return (self.shape[0] // self.factor, self.shape[1] // self.factor)
 
 
@@ -865,60 +869,6 @@ def _smooth_path(path: np.ndarray, window: int) -> np.ndarray:
         p = np.pad(path[:, j], pad, mode="edge")
         out[:, j] = np.convolve(p, k, mode="same")[pad: pad + len(path)]
     return out
-
-
-def interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
-    """Linear interpolation of every column of ``fp`` (m, d) at ``x``: :func:`numpy.interp` per column.
-
-    Parameters
-    ----------
-    x : (n,) array
-        Where to interpolate, in the units of ``xp`` (e.g. arc length, mm or px).
-    xp : (m,) array
-        Increasing abscissae of the rows of ``fp``.
-    fp : (m, d) array
-        Values (e.g. points of a polyline, in its own frame and units).
-
-    Returns
-    -------
-    (n, d) float64 array
-        The rows at ``x``; beyond ``xp`` the end rows.
-    """
-    return np.stack([np.interp(x, xp, fp[:, j]) for j in range(fp.shape[1])], axis=1)
-
-
-def resample_arc(points: np.ndarray, step: float, spread: bool = False) -> tuple:
-    """Points along a polyline by arc length (its frame and units: px for image curves, mm for backbones).
-
-    Parameters
-    ----------
-    points : (m, d) array
-        The polyline.
-    step : float
-        Arc-length step, in the units of ``points``.
-    spread : bool, optional
-        False: at ``0, step, 2 step, ...`` up to the length (the end itself
-        only when it falls on a step; a polyline of zero length gives its
-        first point). True: ``max(2, floor(length / step) + 1)`` points spread
-        evenly from the first to the last point (spacing at least ``step``;
-        two copies of the first point for zero length).
-
-    Returns
-    -------
-    points : (n, d) float64 array
-        The resampled points.
-    s : (n,) float64 array
-        Their arc length from the first point.
-    """
-    s = arc_length(points)
-    if spread:
-        n = max(2, int(np.floor(s[-1] / step)) + 1)
-        t = np.linspace(0.0, s[-1], n) if s[-1] > 0 else np.zeros(2)
-    elif s[-1] <= 0:
-        return points[:1], s[:1]
-    else:
-        t = np.arange(0.0, s[-1] + 1e-9, step)
-    return interp_rows(t, s, points), t
 
 
 @dataclass(eq=False)
@@ -1684,7 +1634,7 @@ def _fit_along_path(model: ViewModel, frame: np.ndarray, coarse: CoarseResult, p
     """
     f = model.factor
     rmax, nav, thr, thr_px, wmin, wmax, strong = _edge_limits(model, params)
-    seeds, s = resample_arc(_smooth_path(coarse.path_px, 3), params.profile_step_px)
+    seeds, s = resample_arc(_smooth_path(coarse.path_px, 3), params.profile_step_px, mode="steps")
     tang = _tangents(seeds)
     half = int(np.ceil(rmax * 1.45 + 1.5 * f + 2))
     prof = edges_from_profiles(model, frame, coarse.coefficients, seeds, tang, s, half, thr, nav, thr_px, strong)

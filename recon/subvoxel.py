@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .backbone import arc_length, resample_polyline
+from .geometry import arc_length, resample_polyline
 
 __all__ = ["SubvoxelParams", "refine_backbone"]
 

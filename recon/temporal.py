@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .geometry import arc_length, points_at_arc_length
+
 __all__ = ["JumpLimits", "jump_check", "shape_distance"]
 
 
@@ -36,20 +38,25 @@ class JumpLimits:
     shape_mm: float = 25.0
 
 
-def _at_arc_length(points: np.ndarray, s: np.ndarray) -> np.ndarray:
-    seg = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    cum = np.concatenate([[0.0], np.cumsum(seg)])
-    return np.stack([np.interp(s, cum, points[:, j]) for j in range(3)], axis=1), cum[-1]
-
-
 def shape_distance(a: np.ndarray, b: np.ndarray, step_mm: float = 2.0) -> float:
-    """Largest distance (mm) between backbones ``a`` and ``b`` at equal arc length, over the common length."""
-    la = float(np.sum(np.linalg.norm(np.diff(a, axis=0), axis=1)))
-    lb = float(np.sum(np.linalg.norm(np.diff(b, axis=0), axis=1)))
-    s = np.arange(0.0, min(la, lb) + 1e-9, step_mm)
-    pa, _ = _at_arc_length(a, s)
-    pb, _ = _at_arc_length(b, s)
-    return float(np.max(np.linalg.norm(pa - pb, axis=1))) if s.size else 0.0
+    """Largest distance between two backbones at equal arc length, over their common length.
+
+    Parameters
+    ----------
+    a, b : (n, 3) and (m, 3) arrays
+        Backbones, base first (world, mm).
+    step_mm : float, optional
+        Arc-length step (mm) of the samples compared, from the base.
+
+    Returns
+    -------
+    float
+        The largest distance (mm) between ``a`` and ``b`` at the same arc length.
+    """
+    s = np.arange(0.0, min(arc_length(a)[-1], arc_length(b)[-1]) + 1e-9, step_mm)
+    if not s.size:
+        return 0.0
+    return float(np.max(np.linalg.norm(points_at_arc_length(a, s) - points_at_arc_length(b, s), axis=1)))
 
 
 def jump_check(prev_points, prev_tip, points, tip, limits: JumpLimits = JumpLimits()) -> str | None:
@@ -57,10 +64,18 @@ def jump_check(prev_points, prev_tip, points, tip, limits: JumpLimits = JumpLimi
 
     Parameters
     ----------
-    prev_points, points : (n, 3) arrays
-        Previous and current backbones, base first (mm).
+    prev_points, points : (n, 3) arrays or None
+        Previous and current backbones, base first (world, mm); ``prev_points`` None for the first frame.
     prev_tip, tip : (3,) arrays
-    limits : JumpLimits
+        Previous and current tip (world, mm).
+    limits : JumpLimits, optional
+        Largest plausible changes.
+
+    Returns
+    -------
+    str or None
+        Every limit exceeded, with the change (mm), joined by ``"; "``; None when none is (or there is no
+        previous frame).
     """
     if prev_points is None:
         return None
@@ -68,8 +83,8 @@ def jump_check(prev_points, prev_tip, points, tip, limits: JumpLimits = JumpLimi
     dtip = float(np.linalg.norm(np.asarray(tip) - np.asarray(prev_tip)))
     if dtip > limits.tip_mm:
         reasons.append(f"tip moved {dtip:.1f} mm (> {limits.tip_mm:g})")
-    la = float(np.sum(np.linalg.norm(np.diff(prev_points, axis=0), axis=1)))
-    lb = float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
+    la = float(arc_length(prev_points)[-1])
+    lb = float(arc_length(points)[-1])
     if abs(lb - la) > limits.length_mm:
         reasons.append(f"length changed {lb - la:+.1f} mm (> {limits.length_mm:g})")
     ds = shape_distance(prev_points, points)

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.backbone import arc_length
+from recon.geometry import arc_length
 
 __all__ = ["BACKBONE_COLUMNS", "FRAME_COLUMNS", "write_backbone_csv", "read_backbone_csv", "FrameTable"]
 

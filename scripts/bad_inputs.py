@@ -565,7 +565,8 @@ def calibration_cases(work: Work):
 
     def calibrate_k1():
         from recon.calibration_io import save_ros_camera_info, save_world_file
-        from recon.camera import Camera, invert_transform
+        from recon.camera import Camera
+        from recon.geometry import invert_transform
         from recon.rigcal import load_rig_calibration
 
         d = work.new("calibrate")

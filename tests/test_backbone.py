@@ -3,8 +3,9 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from recon.backbone import BackboneParams, order_backbone, resample_polyline, arc_length
+from recon.backbone import BackboneParams, order_backbone
 from recon.errors import FrameError
+from recon.geometry import arc_length, resample_polyline
 from recon.metrics import point_to_polyline_distances
 
 

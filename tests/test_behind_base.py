@@ -6,8 +6,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from recon.camera import Camera, look_at
+from recon.camera import Camera
 from recon.errors import FrameError
+from recon.geometry import look_at
 from recon.methods import prepare
 from recon.paper import PaperParams, behind_base_pixels
 from rig.scenefiles import scene_path

@@ -38,7 +38,7 @@ from recon.calibration_io import (
     save_ros_camera_info,
     save_world_file,
 )
-from recon.camera import invert_transform
+from recon.geometry import invert_transform
 from recon.rigcal import load_rig_calibration, save_rig_calibration
 
 from conftest import SCENES
@@ -360,7 +360,8 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
 
 def test_calibrate_refuses_to_write_a_rig_that_reconstruct_would_refuse(tmp_path, capsys):
     """Issue 15 item 4: a lens with k1 = 50 (+88 % at the corners) is refused when rig.json is written, not at the next load."""
-    from recon.camera import Camera, look_at
+    from recon.camera import Camera
+    from recon.geometry import look_at
     from rig.cli import main
 
     K = np.array([[1000.0, 0.0, 319.5], [0.0, 1000.0, 239.5], [0.0, 0.0, 1.0]])

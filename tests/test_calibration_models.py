@@ -15,7 +15,8 @@ import yaml
 
 from recon.calibration import BoardSpec, CalibrationParams, Detection, calibrate_camera, parse_terms, refine_jointly
 from recon.calibration_io import load_kalibr_camchain, load_ros_camera_info, load_stereo_calib, ros_stereo_rectification
-from recon.camera import Camera, invert_transform, look_at, rotation_matrix
+from recon.camera import Camera
+from recon.geometry import invert_transform, look_at, rotation_matrix
 from recon.rigcal import load_rig_calibration
 
 BOARD = BoardSpec.parse("9x6", 8.0)

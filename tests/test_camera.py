@@ -4,7 +4,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from recon.camera import Camera, distort_normalized, invert_transform, look_at, undistort_normalized
+from recon.camera import Camera, distort_normalized, undistort_normalized
+from recon.geometry import invert_transform, look_at
 
 
 def _camera(dist=(-0.08, 0.05, 0.001, -0.0015, 0.0)):

@@ -5,9 +5,10 @@ import pytest
 from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
-from recon.camera import Camera, look_at
+from recon.camera import Camera
 from recon.carving import CarvingParams, bounding_box, carve, rig_center
 from recon.errors import FrameError
+from recon.geometry import look_at
 
 K = np.array([[2580.0, 0.0, 511.5], [0.0, 2580.0, 383.5], [0.0, 0.0, 1.0]])
 

@@ -4,8 +4,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from recon.camera import Camera, look_at
+from recon.camera import Camera
 from recon.centerline import INNER, OUTER, CenterlineParams, centerline_params_for, extract_centerline
+from recon.geometry import look_at
 
 H, W = 300, 400
 R_OUTER, R_INNER = 0.8 / 0.12, 0.5 / 0.12  # px: the paper's tubes at ~0.12 mm/px

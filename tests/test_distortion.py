@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from recon import distortion
-from recon.camera import Camera, look_at
+from recon.camera import Camera
+from recon.geometry import look_at
 
 #: One lens per model, strong but monotonic over the image (a real wide-angle lens's size).
 MODELS = {

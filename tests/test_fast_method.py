@@ -13,10 +13,11 @@ import pytest
 import strategies as S
 
 from recon import _kernels
-from recon.camera import Camera, look_at
+from recon.camera import Camera
 from recon.epipolar import EpipolarFrame, align_dp, monotonic, triangulate_rays
 from recon.errors import FrameError
 from recon.fast import FastParams, FastReconstructor, _project, _rays, _rays_in_python, prepare_fast
+from recon.geometry import look_at
 from recon.metrics import backbone_errors, point_to_polyline_distances
 from recon.methods import get_method, prepare
 from recon.params import params_from_dict

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from test_fast_method import _assert_agree, _compiled_and_oracle, _draw_tube, _robot
 
-from recon.camera import Camera, look_at
+from recon.camera import Camera
 from recon.errors import FrameError
+from recon.geometry import look_at
 from recon.metrics import backbone_errors
 from recon.methods import prepare
 from recon.rigcal import RigCalibration

@@ -57,7 +57,8 @@ def test_degenerate_inputs():
 
 def test_only_what_both_cameras_see_is_scored():
     """A robot entering across the border: its unseen part is neither required nor judged."""
-    from recon.camera import Camera, look_at
+    from recon.camera import Camera
+    from recon.geometry import look_at
     from recon.metrics import seen_by_all
     from recon.rigcal import RigCalibration
 

@@ -6,8 +6,9 @@ import cv2
 import numpy as np
 import pytest
 
-from recon.camera import Camera, look_at
+from recon.camera import Camera
 from recon.errors import FrameError
+from recon.geometry import look_at
 from recon.metrics import backbone_errors
 from recon.paper import PaperParams, camera_order, prepare_paper, reconstruct_paper
 from recon.rigcal import RigCalibration

@@ -18,8 +18,9 @@ from hypothesis import strategies as st
 
 import strategies as S
 
-from recon.camera import Camera, look_at  # noqa: E402
+from recon.camera import Camera  # noqa: E402
 from recon.errors import FrameError  # noqa: E402
+from recon.geometry import look_at  # noqa: E402
 from recon.metrics import backbone_errors  # noqa: E402
 
 def _f(lo, hi):

@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from recon.camera import Camera, look_at
+from recon.camera import Camera
+from recon.geometry import look_at
 from recon.rigcal import RigCalibration
 from rig.bench import widebench as W
 

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.camera import Camera, look_at
+from recon.camera import Camera
+from recon.geometry import look_at
 from recon.rigcal import RigCalibration
 from rig.session import SessionWriter
 

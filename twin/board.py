@@ -30,7 +30,8 @@ from pathlib import Path
 import numpy as np
 
 from recon.calibration import BoardSpec
-from recon.camera import Camera, rotation_matrix
+from recon.camera import Camera
+from recon.geometry import rotation_matrix
 
 from .noise import expose, frame_rng, jitter_camera
 from .scene import Scene, load_scene

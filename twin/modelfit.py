@@ -58,6 +58,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import t as student_t
 
+from recon.geometry import arc_length, closest_arc_length, interp_rows, resample_polyline, rotation_from_rotvec
 from recon.metrics import point_to_polyline_distances
 
 from . import robotfile
@@ -179,33 +180,17 @@ def predict(state: ModelState, joints: Joints, ds_mm: float = 0.25) -> Backbone:
     return solve(state.robot, state.offsets.apply(joints), state.model, ds_mm)
 
 
-def _project(points: np.ndarray, poly: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Arc length (on the polyline with vertex arc lengths ``s``) of each point's closest point."""
-    A, AB = poly[:-1], np.diff(poly, axis=0)
-    ab2 = np.maximum(np.einsum("ij,ij->i", AB, AB), 1e-300)
-    AP = points[:, None, :] - A[None]
-    t = np.clip(np.einsum("ijk,jk->ij", AP, AB) / ab2, 0.0, 1.0)
-    d2 = np.einsum("ijk,ijk->ij", AP - t[..., None] * AB, AP - t[..., None] * AB)
-    j = np.argmin(d2, axis=1)
-    r = np.arange(len(points))
-    return s[j] + t[r, j] * (s[j + 1] - s[j])
-
-
 def _at(bb: Backbone, s: np.ndarray) -> np.ndarray:
     """Model positions at arc lengths ``s``, continued straight past both ends."""
     p, sm = bb.p_world_mm, bb.s_mm
     sc = np.clip(s, sm[0], sm[-1])
-    out = np.stack([np.interp(sc, sm, p[:, c]) for c in range(3)], axis=1)
+    out = interp_rows(sc, sm, p)
     lo, hi = s < sm[0], s > sm[-1]
     if lo.any():
         out[lo] += (s[lo] - sm[0])[:, None] * bb.R_world_body[0][:, 2]
     if hi.any():
         out[hi] += (s[hi] - sm[-1])[:, None] * bb.R_world_body[-1][:, 2]
     return out
-
-
-def _cumlen(points: np.ndarray) -> np.ndarray:
-    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
 
 
 def _smooth(points: np.ndarray, raw: np.ndarray, h_mm: float) -> np.ndarray:
@@ -230,7 +215,7 @@ def _arclen(points: np.ndarray, h_mm: float = 2.0, chord_mm: float = 2.0) -> np.
     < 0.06 %) in chords of ~2 mm; each point gets the length of its smoothed
     counterpart.
     """
-    raw = _cumlen(points)
+    raw = arc_length(points)
     if raw[-1] <= 0:
         return raw
     sm = _smooth(points, raw, h_mm) if len(points) > 3 else points
@@ -238,17 +223,8 @@ def _arclen(points: np.ndarray, h_mm: float = 2.0, chord_mm: float = 2.0) -> np.
     anchors = np.searchsorted(raw, np.linspace(0.0, raw[-1], n + 1)).clip(0, len(raw) - 1)
     anchors[0], anchors[-1] = 0, len(raw) - 1
     anchors = np.unique(anchors)
-    at = _cumlen(sm[anchors])
+    at = arc_length(sm[anchors])
     return np.interp(raw, raw[anchors], at)
-
-
-def _resample(points: np.ndarray, step: float) -> np.ndarray:
-    c = _cumlen(points)
-    if c[-1] <= 0:
-        return points[:1].copy()
-    n = max(1, int(np.ceil(c[-1] / step - 1e-9)))
-    t = np.minimum(np.arange(n + 1) * step, c[-1])
-    return np.stack([np.interp(t, c, points[:, k]) for k in range(3)], axis=1)
 
 
 def _start_arc_length(points: np.ndarray, c: np.ndarray, bb: Backbone) -> float:
@@ -265,7 +241,7 @@ def _start_arc_length(points: np.ndarray, c: np.ndarray, bb: Backbone) -> float:
     half = c <= 0.5 * c[-1]
     if half.sum() < 2:
         half = np.ones(len(c), bool)
-    sigma = _project(points[half], bb.p_world_mm, sm)
+    sigma = closest_arc_length(points[half], bb.p_world_mm, sm)[0]
     off = sigma - c[half]
     inner = (sigma > sm[0] + 1e-6) & (sigma < sm[-1] - 1e-6)
     return float(np.mean(off[inner] if inner.sum() >= 2 else off))
@@ -388,16 +364,6 @@ class _Work:
 
 def _second_moment(t: dict) -> float:
     return np.pi / 64.0 * (t["outer_diameter_mm"] ** 4 - t["inner_diameter_mm"] ** 4)
-
-
-def _rotvec(v_deg) -> np.ndarray:
-    v = np.deg2rad(np.asarray(v_deg, float))
-    th = np.linalg.norm(v)
-    if th < 1e-15:
-        return np.eye(3)
-    k = v / th
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K
 
 
 @dataclass
@@ -540,7 +506,7 @@ def _apply(params: list, values: np.ndarray, base: ModelState) -> ModelState:
         else:
             p.set(w, float(v))
     if np.any(rotv):
-        w.T[:3, :3] = w.T[:3, :3] @ _rotvec(rotv)
+        w.T[:3, :3] = w.T[:3, :3] @ rotation_from_rotvec(np.deg2rad(rotv))
     return w.state()
 
 
@@ -620,7 +586,7 @@ class _Problem:
         self.base, self.params, self.tip_weight, self.ds = base, params, tip_weight, ds_mm
         self.meas = []
         for fr in frames:
-            q = _resample(np.asarray(fr.points_mm, float), step_mm)
+            q = resample_polyline(np.asarray(fr.points_mm, float), step_mm)
             if len(q) < 2:
                 raise ModelFitError(f"frame {fr.index}: measured backbone has fewer than 2 points")
             self.meas.append((fr, q, _arclen(q)))

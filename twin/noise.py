@@ -11,7 +11,8 @@ import zlib
 import cv2
 import numpy as np
 
-from recon.camera import Camera, rotation_matrix
+from recon.camera import Camera
+from recon.geometry import rotation_matrix
 
 from .scene import NoiseModel
 

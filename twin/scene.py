@@ -13,8 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from recon.calibration_check import distortion_problem, field_of_view_problem, principal_point_problem
-from recon.camera import Camera, look_at, rotation_matrix
+from recon.camera import Camera
 from recon.distortion import MODEL_SIZES
+from recon.geometry import look_at, rotation_matrix
 from recon.memory import check_memory, render_bytes
 from recon.rigcal import RigCalibration
 

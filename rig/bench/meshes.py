@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from recon.backbone import arc_length
+from recon.geometry import arc_length
 from recon.tubemesh import radii_along, tube_mesh
 
 __all__ = ["recon_tube", "truth_tube", "to_trimesh", "export_mesh", "write_frame_meshes", "RECON_RGBA", "TRUTH_RGBA", "MESH_FORMATS"]
