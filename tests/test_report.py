@@ -18,7 +18,8 @@ import pytest
 import trimesh
 from PIL import Image
 
-from recon.camera import Camera, look_at
+from recon.camera import Camera
+from recon.geometry import look_at
 from recon.metrics import point_to_polyline_distances
 from recon.rigcal import RigCalibration
 from recon.tubemesh import clean_polyline, radii_along, tangents, transport_frames, tube_mesh
@@ -196,6 +197,27 @@ def test_a_bad_truth_file_is_a_note_not_the_end_of_the_report(tmp_path, spoil):
     assert "Frame 0 is drawn without" not in html
 
 
+def test_session_text_is_escaped(tmp_path):
+    # Notes, reasons and file names come from a user's session: the template shows them as text, never markup.
+    from rig.bench.report import build_report
+
+    out = make_run_dir(tmp_path / "a<b>&'c")
+    summary = json.loads((out / "summary.json").read_text())
+    r0, r1, r2 = summary["per_frame"]
+    r0["note"] = "<script>alert(1)</script>"
+    r1.update(status="suspect", reason="<b>bold</b> & more", jump_flag=True, jump_reason="<i>40 mm</i>")
+    r2["reason"] = "<img src=x onerror=alert(2)>"
+    (out / "summary.json").write_text(json.dumps(summary))
+    html = build_report(out, meshes=False, overlays=False).read_text()
+    assert "<script" not in html.lower() and "&lt;script&gt;alert(1)&lt;/script&gt;" in html
+    assert "<b>bold</b>" not in html and "suspect: &lt;b&gt;bold&lt;/b&gt; &amp; more" in html
+    assert "<i>" not in html and "(jump: &lt;i&gt;40 mm&lt;/i&gt;)" in html
+    assert "<img src=x" not in html and html.count("&lt;img src=x onerror=alert(2)&gt;") == 2  # failed table, frame section
+    assert "a<b>" not in html and "a&lt;b&gt;&amp;&#39;c" in html
+    # the markup the page means is still markup
+    assert "<tr class='suspect'>" in html and "<tr class='failed'>" in html and "<b>1.100 mm</b>" in html
+
+
 def test_cli_report_errors_are_one_line(tmp_path, capsys):
     from rig.cli import main
     from rig.bench.report import report_or_warn
@@ -227,15 +249,6 @@ def test_detail_frame_selection_keeps_failed_and_worst():
     chosen = select_detail_frames(recs, 30)
     assert len(chosen) <= 30 and 5 in chosen and 16 in chosen and chosen == sorted(chosen)
     assert select_detail_frames(recs[:10], 30) == list(range(10))
-
-
-def test_closest_arc_length():
-    from rig.bench.report import closest_arc_length
-
-    line = np.array([[0.0, 0, 0], [10, 0, 0], [10, 10, 0]])
-    s, d = closest_arc_length(np.array([[5.0, 1, 0], [11, 5, 0], [-1, 0, 0]]), line)
-    np.testing.assert_allclose(s, [5, 15, 0])
-    np.testing.assert_allclose(d, [1, 1, 1])
 
 
 # -------------------------------------------------------------------- tube mesh

@@ -1,4 +1,5 @@
-"""A plain (non-editable) install works: the wheel carries every module and scene, and ``ctr-bench run`` runs from it.
+"""A plain (non-editable) install works: the wheel carries every module, scene and template, and ``ctr-bench run``
+and ``ctr-bench report`` run from it.
 
 Issue 14, item 7: ``ctr-bench run`` looked for scenes/paper.toml beside the
 source tree, which an installed wheel does not have. This test builds the wheel
@@ -143,6 +144,7 @@ def test_wheel_installs_and_runs_the_default_scene(tmp_path):
     wheel = _build_wheel(src, tmp_path / "dist")
     members = {n for n in zipfile.ZipFile(wheel).namelist() if ".dist-info/" not in n}
     assert members == expected  # every module and scene file, nothing else
+    assert {"rig/bench/templates/report.html.j2", "rig/bench/templates/report.css"} <= members  # the report's layout
     venv = _fresh_venv(tmp_path / "venv", wheel)
     elsewhere = tmp_path / "elsewhere"  # outside the checkout: nothing found through the working directory
     elsewhere.mkdir()
@@ -162,3 +164,9 @@ def test_wheel_installs_and_runs_the_default_scene(tmp_path):
     scene = Path(json.loads((elsewhere / "r" / "session" / "session.json").read_text())["scene"])
     assert scene.resolve().parts[-3:] == ("rig", "scenes", "paper.toml"), scene  # the wheel's copy, not the checkout's
     assert scene.resolve().is_relative_to(venv.resolve()), scene
+
+    # the report's template is found inside the installed package (jinja2's PackageLoader), not the checkout
+    cmd = [exe, "report", "r", "--no-overlays", "--no-meshes", "--quiet"]
+    proc = subprocess.run(cmd, cwd=elsewhere, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "<h2 id='summary'>Summary</h2>" in (elsewhere / "r" / "report" / "index.html").read_text()

@@ -9,11 +9,12 @@ to PNGs, no JavaScript, no network. Contents and file names: docs/outputs.md.
 
 The figure functions take arrays and write one PNG each (matplotlib's Agg canvas,
 never pyplot, so no global backend is touched); :func:`build_report` gathers the
-arrays from a run directory and writes the page.
+arrays from a run directory and writes the page, whose layout is the jinja2 template
+``rig/bench/templates/report.html.j2`` (the functions here compute its rows and numbers).
 """
 from __future__ import annotations
 
-import html
+import functools
 import json
 import os
 import shutil
@@ -34,7 +35,7 @@ from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 from PIL import Image, ImageDraw, ImageFont
 
-from recon.backbone import arc_length
+from recon.geometry import arc_length, closest_arc_length
 from recon.tubemesh import radii_along, tube_mesh
 from rig.bench.meshes import recon_tube, truth_tube, write_frame_meshes
 from rig.bench.reconstruct import read_run
@@ -46,7 +47,6 @@ __all__ = [
     "load_run",
     "RunData",
     "time_colors",
-    "closest_arc_length",
     "fig_backbones_3d",
     "fig_projections",
     "fig_error_along_arc",
@@ -133,43 +133,6 @@ def _px_axis(ax, mm_per_px, which="y"):
     else:
         sec = ax.secondary_xaxis("top", functions=(lambda v: v / k, lambda v: v * k))
         sec.set_xlabel(f"px (1 px = {k:.3f} mm)")
-
-
-def closest_arc_length(points, polyline) -> tuple:
-    """For each point, the arc length along ``polyline`` of its closest point, and the distance.
-
-    Parameters
-    ----------
-    points : (n, 3) array
-    polyline : (m, 3) array, m >= 1
-
-    Returns
-    -------
-    s : (n,) array
-        Arc length from the polyline's first vertex to the closest point on it.
-    d : (n,) array
-        Distance to that point (the closest-point distance of :mod:`recon.metrics`).
-    """
-    P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    V = np.asarray(polyline, dtype=np.float64).reshape(-1, 3)
-    if len(V) == 1:
-        return np.zeros(len(P)), np.linalg.norm(P - V[0], axis=1)
-    A, AB = V[:-1], np.diff(V, axis=0)
-    L = np.linalg.norm(AB, axis=1)
-    s0 = np.concatenate([[0.0], np.cumsum(L)])[:-1]
-    ab2 = np.where(L > 0, L * L, 1.0)
-    s_out, d_out = np.empty(len(P)), np.empty(len(P))
-    rows = max(1, 2_000_000 // len(A))
-    for i in range(0, len(P), rows):
-        AP = P[i:i + rows, None, :] - A[None]
-        t = np.clip(np.einsum("ijk,jk->ij", AP, AB) / ab2, 0.0, 1.0)
-        D = AP - t[:, :, None] * AB[None]
-        d2 = np.einsum("ijk,ijk->ij", D, D)
-        j = d2.argmin(axis=1)
-        k = np.arange(len(j))
-        d_out[i:i + rows] = np.sqrt(d2[k, j])
-        s_out[i:i + rows] = s0[j] + t[k, j] * L[j]
-    return s_out, d_out
 
 
 # ----------------------------------------------------------------------------- figures
@@ -559,6 +522,73 @@ def _panel(image: np.ndarray, box, out_w: int, out_h: int, recon_uv, truth_uv, z
     return panel
 
 
+def _camera_row(img: np.ndarray, cam: str, ru, tu, view_width: int, aspect_range, tip_min_px: float, font) -> np.ndarray:
+    """One camera's row of :func:`overlay_panels`: the robot region and the square tip zoom, labelled.
+
+    Parameters
+    ----------
+    img : (H, W) or (H, W, 3) uint8
+    cam : str
+        Camera name, for the labels.
+    ru, tu : (n, 2) pixel arrays or None
+        Reconstruction and truth in this camera's image.
+    view_width, aspect_range, tip_min_px, font
+        As :func:`overlay_panels` (``font``: the labels' font).
+
+    Returns
+    -------
+    (h, view_width + 8 + h, 3) uint8 RGB
+    """
+    rgb = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB) if img.ndim == 2 else img
+    h, w = rgb.shape[:2]
+    both = [np.asarray(a, float) for a in (ru, tu) if a is not None and len(a)]
+    pts = np.concatenate(both) if both else np.zeros((0, 2))
+    fin = pts[np.all(np.isfinite(pts), axis=1)] if len(pts) else pts
+    if len(fin):
+        ext = np.ptp(fin, axis=0) + 80.0
+        aspect = float(np.clip(ext[0] / ext[1], *aspect_range))
+    else:
+        aspect = w / h
+    vw, vh = view_width, int(round(view_width / aspect))
+    view_box = _crop_box(pts, w, h, pad=40, aspect=vw / vh, min_w=w / 3)
+    zs = vh  # the tip zoom is square, as tall as the view
+    tips = np.array([a[-1] for a in both if np.all(np.isfinite(a[-1]))]) if both else np.zeros((0, 2))
+    if len(tips):
+        span = float(np.ptp(tips, axis=0).max()) if len(tips) > 1 else 0.0
+        zoom_box = _crop_box(tips, w, h, pad=max(tip_min_px / 2, 0.25 * span), aspect=1.0, min_w=tip_min_px)
+    else:
+        zoom_box = _crop_box(pts, w, h, pad=20, aspect=1.0, min_w=tip_min_px)
+    row = np.full((vh, vw + 8 + zs, 3), 255, np.uint8)
+    row[:, :vw] = _panel(rgb, view_box, vw, vh, ru, tu, zoom=False)
+    row[:, vw + 8:] = _panel(rgb, zoom_box, zs, zs, ru, tu, zoom=True)
+    pil = Image.fromarray(row)
+    d = ImageDraw.Draw(pil)
+    zf = zs / (zoom_box[2] - zoom_box[0])
+    vf = vw / (view_box[2] - view_box[0])
+    for x, label in ((0, f"{cam} camera, x{vf:.2f}"), (vw + 8, f"{cam}: tip, x{zf:.1f}")):
+        tb = d.textbbox((x + 6, 5), label, font=font)
+        d.rectangle((tb[0] - 4, tb[1] - 3, tb[2] + 4, tb[3] + 3), fill=(255, 255, 255))
+        d.text((x + 6, 5), label, fill=(0, 0, 0), font=font)
+    return np.asarray(pil)
+
+
+def _legend_strip(width: int, header: str, has_recon: bool, has_truth: bool) -> np.ndarray:
+    """The strip on top of an overlay: ``header`` and the legend of the curves drawn (``width`` px wide, RGB)."""
+    font, small = _font(16), _font(14)
+    head = Image.new("RGB", (width, 56), (255, 255, 255))
+    d = ImageDraw.Draw(head)
+    d.text((6, 4), header, fill=(0, 0, 0), font=font)
+    x = 6
+    for rgbc, label, show in ((RECON_RGB, "reconstruction, reprojected through the calibration (o: tip)", has_recon),
+                              (TRUTH_RGB, "ground truth as imaged (x: tip)", has_truth)):
+        if not show:
+            continue
+        d.line((x, 40, x + 28, 40), fill=rgbc, width=4)
+        d.text((x + 34, 31), label, fill=(0, 0, 0), font=small)
+        x += 34 + d.textlength(label, font=small) + 24
+    return np.asarray(head)
+
+
 def overlay_panels(path, images: dict, recon_uv: dict, truth_uv: dict, header: str, footer: str = "",
                    view_width: int = 640, aspect_range=(4 / 3, 2.4), tip_min_px: float = 64.0, colours: int = 256) -> Path:
     """One PNG per frame: each camera's image with the reprojected reconstruction and truth.
@@ -578,60 +608,13 @@ def overlay_panels(path, images: dict, recon_uv: dict, truth_uv: dict, header: s
     colours : int
         Palette size of the PNG (the noisy camera images compress poorly in full RGB).
     """
-    rows = []
-    font = _font(16)
     small = _font(14)
-    for cam, img in images.items():
-        rgb = cv2.cvtColor(img, cv2.COLOR_GRAY2RGB) if img.ndim == 2 else img
-        h, w = rgb.shape[:2]
-        ru = recon_uv.get(cam)
-        tu = truth_uv.get(cam)
-        both = [np.asarray(a, float) for a in (ru, tu) if a is not None and len(a)]
-        pts = np.concatenate(both) if both else np.zeros((0, 2))
-        fin = pts[np.all(np.isfinite(pts), axis=1)] if len(pts) else pts
-        if len(fin):
-            ext = np.ptp(fin, axis=0) + 80.0
-            aspect = float(np.clip(ext[0] / ext[1], *aspect_range))
-        else:
-            aspect = w / h
-        vw, vh = view_width, int(round(view_width / aspect))
-        view_box = _crop_box(pts, w, h, pad=40, aspect=vw / vh, min_w=w / 3)
-        zs = vh  # the tip zoom is square, as tall as the view
-        tips = np.array([a[-1] for a in both if np.all(np.isfinite(a[-1]))]) if both else np.zeros((0, 2))
-        if len(tips):
-            span = float(np.ptp(tips, axis=0).max()) if len(tips) > 1 else 0.0
-            zoom_box = _crop_box(tips, w, h, pad=max(tip_min_px / 2, 0.25 * span), aspect=1.0, min_w=tip_min_px)
-        else:
-            zoom_box = _crop_box(pts, w, h, pad=20, aspect=1.0, min_w=tip_min_px)
-        a = _panel(rgb, view_box, vw, vh, ru, tu, zoom=False)
-        z = _panel(rgb, zoom_box, zs, zs, ru, tu, zoom=True)
-        row = np.full((vh, vw + 8 + zs, 3), 255, np.uint8)
-        row[:, :vw] = a
-        row[:, vw + 8:] = z
-        pil = Image.fromarray(row)
-        d = ImageDraw.Draw(pil)
-        zf = zs / (zoom_box[2] - zoom_box[0])
-        vf = vw / (view_box[2] - view_box[0])
-        for x, label in ((0, f"{cam} camera, x{vf:.2f}"), (vw + 8, f"{cam}: tip, x{zf:.1f}")):
-            tb = d.textbbox((x + 6, 5), label, font=small)
-            d.rectangle((tb[0] - 4, tb[1] - 3, tb[2] + 4, tb[3] + 3), fill=(255, 255, 255))
-            d.text((x + 6, 5), label, fill=(0, 0, 0), font=small)
-        rows.append(np.asarray(pil))
+    rows = [_camera_row(img, cam, recon_uv.get(cam), truth_uv.get(cam), view_width, aspect_range, tip_min_px, small)
+            for cam, img in images.items()]
     width = max((r.shape[1] for r in rows), default=800)
-    head = Image.new("RGB", (width, 56), (255, 255, 255))
-    d = ImageDraw.Draw(head)
-    d.text((6, 4), header, fill=(0, 0, 0), font=font)
-    x = 6
     has_truth = any(v is not None and len(v) for v in truth_uv.values())
     has_recon = any(v is not None and len(v) for v in recon_uv.values())
-    for rgbc, label, show in ((RECON_RGB, "reconstruction, reprojected through the calibration (o: tip)", has_recon),
-                              (TRUTH_RGB, "ground truth as imaged (x: tip)", has_truth)):
-        if not show:
-            continue
-        d.line((x, 40, x + 28, 40), fill=rgbc, width=4)
-        d.text((x + 34, 31), label, fill=(0, 0, 0), font=small)
-        x += 34 + d.textlength(label, font=small) + 24
-    parts = [np.asarray(head)]
+    parts = [_legend_strip(width, header, has_recon, has_truth)]
     for r in rows:
         if r.shape[1] < width:
             r = np.concatenate([r, np.full((r.shape[0], width - r.shape[1], 3), 255, np.uint8)], axis=1)
@@ -752,27 +735,33 @@ def _tube_radii(run: RunData) -> tuple:
 
 
 # ----------------------------------------------------------------------------- HTML
-_CSS = """
-body{font-family:-apple-system,Segoe UI,Helvetica,Arial,sans-serif;margin:24px auto;max-width:1180px;color:#222;padding:0 12px}
-h1{font-size:1.6em;margin-bottom:0.2em} h2{border-bottom:2px solid #0072b2;padding-bottom:3px;margin-top:1.8em}
-h3{margin-bottom:0.3em} .sub{color:#555;margin-top:0}
-table{border-collapse:collapse;font-size:0.92em;margin:0.6em 0}
-th,td{border:1px solid #ccc;padding:3px 8px;text-align:right} th{background:#eef4f9}
-td.l,th.l{text-align:left} tr.failed td{background:#fbe9e2} tr.suspect td{background:#fdf3c8}
-img{max-width:100%;height:auto;border:1px solid #ddd;margin:4px 0}
-.figs img{display:block} .note{color:#555;font-size:0.9em}
-nav a{margin-right:1em} code{background:#f3f3f3;padding:1px 3px}
-.big{font-size:1.15em} details{margin:0.6em 0}
-"""
+# The page's layout is rig/bench/templates/report.html.j2; the functions below compute what it shows:
+# every number already formatted, every row a dict. Text from a session (file names, notes, reasons)
+# stays plain str: the template escapes it.
+_DASH = "\u2013"  # a missing number (an en dash)
+
+
+@functools.lru_cache(maxsize=1)
+def _template():
+    """The report page's jinja2 template, loaded once (from the installed package, so a wheel finds it too)."""
+    from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
+
+    env = Environment(loader=PackageLoader("rig.bench", "templates"),
+                      # every template escapes: a note with markup in it shows as text, never runs
+                      autoescape=select_autoescape(("html", "html.j2"), default=True),
+                      undefined=StrictUndefined, trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True)
+    return env.get_template("report.html.j2")
 
 
 def _f(v, p=3, unit=""):
+    """A number with ``p`` decimals and its unit; a dash when it is missing or not finite."""
     if v is None or (isinstance(v, float) and not np.isfinite(v)):
-        return "&ndash;"
+        return _DASH
     return f"{v:.{p}f}{unit}"
 
 
 def _px(v, mmpp):
+    """`` (N px)``: a length in mm as pixels at the base (``mmpp`` mm per pixel); empty without either."""
     if v is None or not mmpp:
         return ""
     return f" ({v / mmpp:.1f} px)"
@@ -792,7 +781,7 @@ def _html_page(run: RunData, figs: dict, details: list, meshes: dict, notes: lis
     meshes : dict
         Frame -> {format: link} of the mesh files written (empty: none).
     notes : list of str
-        Remarks shown under the summary (plain text, escaped here).
+        Remarks shown under the summary (plain text, escaped by the template).
     built_s : float
         Time the report took to build, s.
 
@@ -801,46 +790,20 @@ def _html_page(run: RunData, figs: dict, details: list, meshes: dict, notes: lis
     str
         The HTML document.
     """
-    e = html.escape
-    o = _html_head(run)
-    o += _html_summary(run.summary, notes)
-    o += _html_figures(run, figs, meshes)
-    o += _html_frame_table(run, details, meshes)
-    o += _html_failed(run, details)
-    o += _html_details(run, figs, details)
-    o.append(f"<p class='note'>Built by <code>ctr-bench report</code> in {built_s:.1f} s; rebuild with <code>ctr-bench report {e(str(run.out))}</code>.</p>")
-    o.append("</body></html>")
-    return "\n".join(o)
-
-
-def _html_head(run: RunData) -> list:
-    """The page's head, title line (run, session, build time) and navigation bar, as HTML lines.
-
-    Parameters
-    ----------
-    run : RunData
-        The run; its summary names the method and session, its session meta the scene.
-
-    Returns
-    -------
-    list of str
-    """
     s = run.summary
-    e = html.escape
     scene = run.session_meta.get("scene_name") or ""
-    source = run.session_meta.get("source") or ""
-    title = f"ctr-bench report: {scene + ' — ' if scene else ''}method {s.get('method', '?')}"
-    o = [f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{e(title)}</title><style>{_CSS}</style></head><body>"]
-    o.append(f"<h1>{e(title)}</h1>")
-    o.append(f"<p class='sub'>{e(str(run.out))} &middot; session <code>{e(str(s.get('session', '')))}</code>"
-             f"{' (' + e(source) + ')' if source else ''} &middot; report built {e(time.strftime('%Y-%m-%d %H:%M:%S'))}</p>")
-    o.append("<nav><a href='#summary'>Summary</a><a href='#shape'>Backbones</a><a href='#errors'>Errors</a>"
-             "<a href='#timing'>Timing</a><a href='#tubes'>Tubes</a><a href='#frames'>Frames</a><a href='#failed'>Failed frames</a></nav>")
-    return o
+    return _template().render(
+        title=f"ctr-bench report: {scene + ' — ' if scene else ''}method {s.get('method', '?')}",
+        out=str(run.out), session=str(s.get("session", "")), source=run.session_meta.get("source") or "",
+        built_at=time.strftime("%Y-%m-%d %H:%M:%S"), built_s=f"{built_s:.1f}",
+        summary_rows=_summary_rows(s), params=json.dumps(s["params"], indent=2) if s.get("params") else "",
+        notes=notes, figs=figs, mesh_frames=len(meshes), max_mesh_frames=MAX_MESH_FRAMES,
+        frame_rows=_frame_rows(run.records, set(details), meshes), failed=_failed_groups(run.records, set(details)),
+        detail_rows=_detail_rows(run.records, figs.get("overlay", {}), details), n_records=len(run.records))
 
 
 def _summary_rows(s: dict) -> list:
-    """The summary table's (label, HTML value) rows; figures the run did not measure are left out.
+    """The summary table's rows; figures the run did not measure are left out.
 
     Parameters
     ----------
@@ -849,257 +812,126 @@ def _summary_rows(s: dict) -> list:
 
     Returns
     -------
-    list of (str, str)
+    list of dict
+        ``label``, and the value as ``strong`` (shown bold; may be empty) followed by ``text``.
     """
-    e = html.escape
+    def row(label, text, strong=""):
+        return {"label": label, "strong": strong, "text": text}
+
     mmpp = s.get("mm_per_px")
     rows = [
-        ("method", e(str(s.get("method")))),
-        ("frames", f"{s.get('frames', 0)} ({s.get('failed_frames', 0)} failed, "
-                   + (f"{s.get('suspect_frames', 0)} suspect by the self-check, " if s.get("suspect_frames") is not None else "")
-                   + (f"{s['jump_frames']} with a temporal jump, " if s.get("jump_frames") else "")
-                   + f"{s.get('scored_frames', 0)} ok frames scored against ground truth)"),
-        ("pixel footprint at the base", _f(mmpp, 4, " mm")),
+        row("method", str(s.get("method"))),
+        row("frames", f"{s.get('frames', 0)} ({s.get('failed_frames', 0)} failed, "
+                      + (f"{s.get('suspect_frames', 0)} suspect by the self-check, " if s.get("suspect_frames") is not None else "")
+                      + (f"{s['jump_frames']} with a temporal jump, " if s.get("jump_frames") else "")
+                      + f"{s.get('scored_frames', 0)} ok frames scored against ground truth)"),
+        row("pixel footprint at the base", _f(mmpp, 4, " mm")),
     ]
     if s.get("mean_error_mm") is not None:
         rows += [
-            ("mean error", f"<b>{_f(s['mean_error_mm'], 3, ' mm')}</b>{_px(s['mean_error_mm'], mmpp)}"),
-            ("max error (worst frame's Hausdorff)", f"{_f(s.get('max_error_mm'), 3, ' mm')}{_px(s.get('max_error_mm'), mmpp)}"),
-            ("tip error, median / max", f"{_f(s.get('tip_error_mm_median'), 3)} / {_f(s.get('tip_error_mm_max'), 3, ' mm')}"
-             f"{_px(s.get('tip_error_mm_median'), mmpp)}"),
-            ("length error, median", _f(s.get("length_error_mm_median"), 3, " mm")),
+            row("mean error", _px(s["mean_error_mm"], mmpp), strong=_f(s["mean_error_mm"], 3, " mm")),
+            row("max error (worst frame's Hausdorff)", f"{_f(s.get('max_error_mm'), 3, ' mm')}{_px(s.get('max_error_mm'), mmpp)}"),
+            row("tip error, median / max", f"{_f(s.get('tip_error_mm_median'), 3)} / {_f(s.get('tip_error_mm_max'), 3, ' mm')}"
+                f"{_px(s.get('tip_error_mm_median'), mmpp)}"),
+            row("length error, median", _f(s.get("length_error_mm_median"), 3, " mm")),
         ]
     if s.get("voxel_edge_mm_median") is not None:
-        rows.append(("voxel edge (largest of three), median / max", f"{_f(s['voxel_edge_mm_median'], 3)} / {_f(s.get('voxel_edge_mm_max'), 3, ' mm')}"))
+        rows.append(row("voxel edge (largest of three), median / max", f"{_f(s['voxel_edge_mm_median'], 3)} / {_f(s.get('voxel_edge_mm_max'), 3, ' mm')}"))
     if s.get("ms_per_pair_median") is not None:
         fps = 1e3 / s["ms_per_pair_median"] if s["ms_per_pair_median"] else None
-        rows.append(("time per pair, median / p95", f"<b>{_f(s['ms_per_pair_median'], 1)}</b> / {_f(s.get('ms_per_pair_p95'), 1, ' ms')}"
-                     f"{f' ({fps:.1f} pairs/s)' if fps else ''}"))
+        rows.append(row("time per pair, median / p95", f" / {_f(s.get('ms_per_pair_p95'), 1, ' ms')}{f' ({fps:.1f} pairs/s)' if fps else ''}",
+                        strong=_f(s["ms_per_pair_median"], 1)))
     return rows
 
 
-def _html_summary(s: dict, notes: list) -> list:
-    """The summary section: its table, the method parameters (folded) and the notes, as HTML lines.
+def _frame_rows(records: list, shown: set, meshes: dict) -> list:
+    """The per-frame table's rows: status, sizes and errors (mm), time (ms), links to the frame and its meshes.
 
     Parameters
     ----------
-    s : dict
-        The run's ``summary.json``.
-    notes : list of str
-        Plain-text remarks (escaped here).
-
-    Returns
-    -------
-    list of str
-    """
-    e = html.escape
-    o = ["<h2 id='summary'>Summary</h2><table>"]
-    for k, v in _summary_rows(s):
-        o.append(f"<tr><th class='l'>{k}</th><td class='l'>{v}</td></tr>")
-    o.append("</table>")
-    if s.get("params"):
-        o.append("<details><summary>method parameters</summary><pre>" + e(json.dumps(s["params"], indent=2)) + "</pre></details>")
-    for n in notes:
-        o.append(f"<p class='note'>{e(n)}</p>")
-    return o
-
-
-def _img_html(figs: dict, key: str, alt: str, note: str = "") -> list:
-    """A figure and its caption as HTML lines; none when the figure was not drawn.
-
-    Parameters
-    ----------
-    figs : dict
-        Figure key -> file name relative to the page.
-    key, alt : str
-        The figure's key in ``figs`` and its alternative text.
-    note : str
-        Caption (HTML, not escaped); empty: none.
-
-    Returns
-    -------
-    list of str
-    """
-    e = html.escape
-    if key not in figs:
-        return []
-    o = [f"<div class='figs'><img src='{e(figs[key])}' alt='{e(alt)}'></div>"]
-    if note:
-        o.append(f"<p class='note'>{note}</p>")
-    return o
-
-
-def _html_figures(run: RunData, figs: dict, meshes: dict) -> list:
-    """The figure sections (backbones, errors, timing, tubes) and where the mesh files are, as HTML lines.
-
-    Parameters
-    ----------
-    run : RunData
-        The run (its directory is named in the hint to write meshes).
-    figs : dict
-        Figure key -> file name relative to the page.
-    meshes : dict
-        Frame -> {format: link} of the mesh files written (empty: none).
-
-    Returns
-    -------
-    list of str
-    """
-    e = html.escape
-    o = ["<h2 id='shape'>Backbones</h2>"]
-    if "backbones_3d" not in figs:
-        o.append("<p>No frame was reconstructed: nothing to draw (see <a href='#failed'>failed frames</a>).</p>")
-    o += _img_html(figs, "backbones_3d", "all backbones in 3D",
-                   "Every reconstructed backbone (solid), coloured from dark blue (first frame) to light blue "
-                   "(last frame) as in the paper's Fig. 8; ground truth dashed in the same colour.")
-    o += _img_html(figs, "projections", "top and side projections",
-                   "The same backbones seen from above (x-y) and from the side (x-z), equal scales; dot: reconstructed tip.")
-    o.append("<h2 id='errors'>Errors</h2>")
-    if "errors_per_frame" in figs:
-        o += _img_html(figs, "errors_per_frame", "errors per frame",
-                       "Mean: mean closest-point distance (both directions pooled); max: symmetric Hausdorff distance; "
-                       "tip: distance between the tips. Right axis in pixels at the robot base.")
-        o += _img_html(figs, "error_along_arc", "error along arc length",
-                       "Distance of each reconstructed point to the true backbone, placed at the arc "
-                       "length (from the robot base) of its closest true point: where along the robot the error comes from; "
-                       "a stretch without line was not reconstructed.")
-    else:
-        o.append("<p>No ground truth: nothing to score.</p>")
-    o.append("<h2 id='timing'>Timing</h2>")
-    o += _img_html(figs, "timing", "timing", "Wall time of the reconstruction of one pair, images already in memory, one core.")
-    o.append("<h2 id='tubes'>Tubes</h2>")
-    o += _img_html(figs, "tubes_over_time", "tubes over time",
-                   "Reconstructed tubes (circles along the backbone with normals along the tangent, "
-                   "patched together — the paper's picture).")
-    o += _img_html(figs, "tubes", "reconstructed vs true tubes",
-                   "Reconstructed tube (blue) and true tube (orange, translucent) on the same axes, for a few frames.")
-    if meshes:
-        o.append(f"<p>Tube meshes of {len(meshes)} frames (world mm) in <code>../meshes/</code>: PLY, OBJ and GLB per frame; "
-                 "<code>_both.glb</code> holds reconstruction and truth together for any glTF viewer.</p>")
-    else:
-        o.append("<p class='note'>No mesh files for this run (more than "
-                 f"{MAX_MESH_FRAMES} frames): <code>ctr-bench report {e(str(run.out))} --meshes</code> writes them.</p>")
-    return o
-
-
-def _html_frame_table(run: RunData, details: list, meshes: dict) -> list:
-    """The per-frame table (status, sizes in mm, errors in mm, time in ms, links to the frame and its meshes), as HTML lines.
-
-    Parameters
-    ----------
-    run : RunData
-        The run; one row per record.
-    details : list of int
+    records : list of dict
+        The run's per-frame records; one row each.
+    shown : set of int
         Frames shown one by one (their rows link to them).
     meshes : dict
         Frame -> {format: link} of the mesh files written.
 
     Returns
     -------
-    list of str
+    list of dict
+        Formatted cells; ``cls`` the row's class (its status unless ok), ``jump`` and ``note`` None when absent,
+        ``meshes`` (format, link) pairs.
     """
-    e = html.escape
-    o = ["<h2 id='frames'>Frames</h2><table><tr><th>frame</th><th>t (s)</th><th class='l'>status</th><th>points</th><th>length mm</th>"
-         "<th>transition s mm</th><th>tip err mm</th><th>mean err mm</th><th>max err mm</th><th>length err mm</th>"
-         "<th>ms</th><th class='l'>files</th></tr>"]
-    dset = set(details)
-    for r in run.records:
-        fr = r["frame"]
-        cls = f" class='{e(r['status'])}'" if r["status"] != "ok" else ""
-        link = f"<a href='#f{fr}'>view</a>" if fr in dset else ""
+    rows = []
+    for r in records:
+        fr, status = r["frame"], str(r["status"])
+        if status == "suspect":
+            status += f": {r.get('reason')}"
         m = meshes.get(fr, {})
-        for fmt in ("ply", "obj", "glb", "both.glb"):
-            if fmt in m:
-                link += f" <a href='{e(m[fmt])}'>{fmt}</a>"
-        st = _status_html(r)
-        if r.get("note"):
-            st += f" <span class='note'>({e(str(r['note']))})</span>"
-        o.append(f"<tr{cls}><td>{fr}</td><td>{_f(r.get('t_s'), 2)}</td><td class='l'>{st}</td><td>{r.get('n_points') or '&ndash;'}</td>"
-                 f"<td>{_f(r.get('length_mm'), 1)}</td><td>{_f(r.get('transition_s_mm'), 1)}</td><td>{_f(r.get('tip_error_mm'))}</td>"
-                 f"<td>{_f(r.get('mean_error_mm'))}</td><td>{_f(r.get('max_error_mm'))}</td><td>{_f(r.get('length_error_mm'), 2)}</td>"
-                 f"<td>{_f(r.get('ms'), 1)}</td><td class='l'>{link}</td></tr>")
-    o.append("</table>")
-    return o
+        rows.append({
+            "frame": fr, "cls": str(r["status"]) if r["status"] != "ok" else "", "status": status,
+            "jump": str(r.get("jump_reason")) if r.get("jump_flag") else None,
+            "note": str(r["note"]) if r.get("note") else None,
+            "t": _f(r.get("t_s"), 2), "points": r.get("n_points") or _DASH, "length": _f(r.get("length_mm"), 1),
+            "transition": _f(r.get("transition_s_mm"), 1), "tip": _f(r.get("tip_error_mm")), "mean": _f(r.get("mean_error_mm")),
+            "max": _f(r.get("max_error_mm")), "length_err": _f(r.get("length_error_mm"), 2), "ms": _f(r.get("ms"), 1),
+            "view": fr in shown, "meshes": [(fmt, m[fmt]) for fmt in ("ply", "obj", "glb", "both.glb") if fmt in m],
+        })
+    return rows
 
 
-def _html_failed(run: RunData, details: list) -> list:
-    """The failed and suspect frames, grouped by status and reason (failed first, then the largest groups), as HTML lines.
+def _failed_groups(records: list, shown: set) -> dict:
+    """The failed and suspect frames grouped by status and reason: failed first, then the largest groups.
 
     Parameters
     ----------
-    run : RunData
-        The run.
-    details : list of int
+    records : list of dict
+        The run's per-frame records.
+    shown : set of int
         Frames shown one by one (their numbers link to them).
 
     Returns
     -------
-    list of str
+    dict
+        ``n_failed``, ``n_suspect`` (frame counts) and ``groups``: dicts of ``status``, ``reason`` and
+        ``frames``, (frame, shown) pairs.
     """
-    e = html.escape
-    o = ["<h2 id='failed'>Failed and suspect frames</h2>"]
-    failed = [r for r in run.records if r["status"] != "ok"]
-    if not failed:
-        o.append("<p>None: every frame was reconstructed and passed the self-check.</p>")
-        return o
-    dset = set(details)
+    failed = [r for r in records if r["status"] != "ok"]
     groups = {}
     for r in failed:
-        groups.setdefault((r["status"], str(r.get("reason"))), []).append(r["frame"])
+        groups.setdefault((str(r["status"]), str(r.get("reason"))), []).append(r["frame"])
     n_suspect = sum(r["status"] == "suspect" for r in failed)
-    o.append(f"<p>{len(failed) - n_suspect} of {len(run.records)} frames failed and {n_suspect} are suspect (reconstructed, "
-             f"but the self-check says the shape does not explain the images), for {len(groups)} reason{'s' if len(groups) > 1 else ''}:</p>")
-    o.append("<table><tr><th>frames</th><th class='l'>status</th><th class='l'>frame numbers</th><th class='l'>reason</th></tr>")
-    for (status, reason), frs in sorted(groups.items(), key=lambda kv: (kv[0][0] != "failed", -len(kv[1]), kv[1][0])):
-        links = ", ".join(f"<a href='#f{f}'>{f}</a>" if f in dset else str(f) for f in frs)
-        o.append(f"<tr class='{e(status)}'><td>{len(frs)}</td><td class='l'>{e(status)}</td><td class='l'>{links}</td><td class='l'>{e(reason)}</td></tr>")
-    o.append("</table>")
-    return o
+    order = sorted(groups.items(), key=lambda kv: (kv[0][0] != "failed", -len(kv[1]), kv[1][0]))
+    return {"n_failed": len(failed) - n_suspect, "n_suspect": n_suspect,
+            "groups": [{"status": st, "reason": why, "frames": [(f, f in shown) for f in frs]} for (st, why), frs in order]}
 
 
-def _html_details(run: RunData, figs: dict, details: list) -> list:
-    """The frame-by-frame section: each detail frame's overlay picture, or why it failed when there is none, as HTML lines.
+def _detail_rows(records: list, overlays: dict, details: list) -> list:
+    """The frame-by-frame section: each detail frame's overlay picture, or why it failed when there is none.
 
     Parameters
     ----------
-    run : RunData
-        The run.
-    figs : dict
-        Figure key -> file name; ``figs["overlay"]`` maps frame -> overlay PNG, when overlays were drawn.
+    records : list of dict
+        The run's per-frame records.
+    overlays : dict
+        Frame -> overlay PNG relative to the page (empty when overlays were not drawn).
     details : list of int
         Frames to show (empty: no section).
 
     Returns
     -------
-    list of str
+    list of dict
+        ``frame``, ``overlay`` (link or None) and ``failure`` (status and reason of a frame not ok without
+        an overlay, else empty).
     """
-    e = html.escape
-    if not details:
-        return []
-    o = ["<h2 id='detail'>Frame by frame</h2>"]
-    if len(details) < len(run.records):
-        o.append(f"<p class='note'>{len(details)} of {len(run.records)} frames shown: the failed ones, the worst by mean error, and evenly spaced others.</p>")
-    o.append("<p class='note'>Each camera image with the reconstruction reprojected through the calibration (blue, circle at the tip) "
-             "and the ground truth where the robot really is in the image (orange, cross at the tip): the robot region and a zoom on the tip.</p>")
-    by = {r["frame"]: r for r in run.records}
+    by = {r["frame"]: r for r in records}
+    rows = []
     for fr in details:
         r = by.get(fr, {})
-        o.append(f"<h3 id='f{fr}'>Frame {fr}</h3>")
-        if "overlay" in figs and fr in figs["overlay"]:
-            o.append(f"<img src='{e(figs['overlay'][fr])}' alt='frame {fr} overlays' loading='lazy'>")
-        elif r.get("status") != "ok":
-            o.append(f"<p>{e(str(r.get('status')))}: {e(str(r.get('reason')))}</p>")
-    return o
-
-
-def _status_html(r: dict) -> str:
-    """A frame's status cell: ok, failed, or suspect with the self-check's reason; a temporal jump noted."""
-    st = html.escape(str(r["status"]))
-    if r["status"] == "suspect":
-        st += f": {html.escape(str(r.get('reason')))}"
-    if r.get("jump_flag"):
-        st += f" <span class='note'>(jump: {html.escape(str(r.get('jump_reason')))})</span>"
-    return st
+        overlay = overlays.get(fr)
+        failure = f"{r.get('status')}: {r.get('reason')}" if overlay is None and r.get("status") != "ok" else ""
+        rows.append({"frame": fr, "overlay": overlay, "failure": failure})
+    return rows
 
 
 # ----------------------------------------------------------------------------- builder
