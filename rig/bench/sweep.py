@@ -1,0 +1,225 @@
+"""Sweeps on Dask distributed: one task a scene, results journalled as they finish, a re-run resumes.
+
+The wide benchmark, tuning and ``scenes generate --render`` evaluate many scenes. Each scene is
+one task (render through the cache, reconstruct, score), submitted to a Dask scheduler:
+
+* ``scheduler=None``: an in-process ``LocalCluster`` sized to the machine (one single-threaded
+  worker process a core, the machine's memory shared among them), with no set-up;
+* ``scheduler="tcp://host:port"``: a running ``dask scheduler`` and its ``dask worker``
+  processes, on this machine or a cluster's nodes (docs/scale.md).
+
+Every finished task is appended to a journal (JSON lines, flushed and fsynced), which is what
+a re-run reads to skip the tasks already done: a sweep killed half-way resumes where it was.
+A task is keyed by its name and the digest of what it depends on (its arguments and the code of
+recon/ and twin/), so a change of code or arguments does not reuse a stale result. A worker
+that dies mid-task is replaced by the scheduler and its task run again elsewhere; the journal
+gets one line a key whatever happens, because only this process writes it.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import json
+import os
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+from distributed import Client, LocalCluster, as_completed
+
+__all__ = ["SweepError", "Task", "Journal", "dask_client", "run_sweep", "code_digest", "task_digest"]
+
+
+class SweepError(ValueError):
+    """A sweep that cannot start (no scheduler at the address, an unreadable journal); one line."""
+
+
+@dataclass(frozen=True)
+class Task:
+    """One unit of a sweep: ``fn(*args)`` run on a worker, its result journalled under ``key``.
+
+    ``key`` names the task in the journal and on the scheduler's dashboard (e.g. the scene's
+    file stem); ``digest`` is what the result depends on (:func:`task_digest`).
+    """
+
+    key: str
+    fn: object
+    args: tuple
+    digest: str
+
+
+_CODE_DIGESTS: dict = {}
+
+
+def code_digest(*packages: str) -> str:
+    """Hash (hex) of the Python sources of ``packages`` (e.g. ``"recon", "twin"``), read once per process.
+
+    Parameters
+    ----------
+    *packages : str
+        Importable package names.
+
+    Returns
+    -------
+    str
+        SHA-256 of every ``*.py`` file's name and bytes, package by package, files sorted.
+    """
+    if packages not in _CODE_DIGESTS:
+        h = hashlib.sha256()
+        for name in packages:
+            spec = importlib.util.find_spec(name)
+            for folder in (spec.submodule_search_locations or []) if spec else []:
+                for path in sorted(Path(folder).rglob("*.py")):
+                    h.update(f"{name}/{path.relative_to(folder)}".encode() + b"\0" + path.read_bytes() + b"\0")
+        _CODE_DIGESTS[packages] = h.hexdigest()
+    return _CODE_DIGESTS[packages]
+
+
+def task_digest(*parts) -> str:
+    """Hash of a task's inputs: ``parts`` as JSON (paths as strings), plus the code of recon/ and twin/.
+
+    Parameters
+    ----------
+    *parts
+        JSON-serialisable values (``str()`` for anything else, e.g. Paths).
+
+    Returns
+    -------
+    str
+        16 hex digits.
+    """
+    h = hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode())
+    h.update(code_digest("recon", "twin").encode())
+    return h.hexdigest()[:16]
+
+
+class Journal:
+    """The finished tasks of a sweep: one JSON line ``{"key", "digest", "result"}`` a task, in finishing order.
+
+    Parameters
+    ----------
+    path : Path
+        The JSONL file; made with its folder if missing. A last line cut short (the sweep was
+        killed while writing it) is dropped and rewritten when that task runs again.
+    """
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.done: dict = {}
+        if self.path.exists():
+            self._read()
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+
+    def _read(self) -> None:
+        try:
+            lines = self.path.read_text(encoding="utf-8").splitlines()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise SweepError(f"{self.path}: cannot read the sweep journal ({type(exc).__name__})") from None
+        good = []
+        for i, line in enumerate(lines):
+            try:
+                rec = json.loads(line)
+                self.done[(rec["key"], rec["digest"])] = rec["result"]
+                good.append(line)
+            except (json.JSONDecodeError, KeyError, TypeError):
+                if i < len(lines) - 1:
+                    raise SweepError(f"{self.path}:{i + 1}: not a sweep journal line") from None
+        if len(good) < len(lines):  # drop the torn last line so appends start on a line of their own
+            self.path.write_text("".join(g + "\n" for g in good), encoding="utf-8")
+
+    def get(self, task: Task):
+        """The journalled result of ``task`` (same key and digest), or None."""
+        return self.done.get((task.key, task.digest))
+
+    def append(self, task: Task, result) -> None:
+        """Record ``result`` of ``task``: one line, flushed to disk before this returns."""
+        line = json.dumps({"key": task.key, "digest": task.digest, "result": result}, default=str)
+        with self.path.open("a", encoding="utf-8") as fh:
+            fh.write(line + "\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        self.done[(task.key, task.digest)] = result
+
+
+@contextmanager
+def dask_client(scheduler: str | None = None, n_workers: int | None = None, memory_per_worker: str = "auto"):
+    """A ``distributed.Client``: on the scheduler at ``scheduler``, or on a new in-process LocalCluster.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        ``tcp://host:port`` of a running ``dask scheduler``; None starts a LocalCluster.
+    n_workers : int, optional
+        LocalCluster workers (default: one a core). Each is a process with one thread, so a
+        task's timings are one core's, as the benchmark reports them.
+    memory_per_worker : str
+        LocalCluster memory limit per worker (``"auto"``: the machine's memory divided among
+        the workers; ``"4GB"``...). A worker past it is restarted by Dask and its task rerun.
+
+    Yields
+    ------
+    distributed.Client
+
+    Raises
+    ------
+    SweepError
+        No scheduler answers at ``scheduler`` within 10 s.
+    """
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError) as exc:
+            raise SweepError(f"--scheduler {scheduler}: no Dask scheduler answers there ({type(exc).__name__})") from None
+        with client:
+            yield client
+        return
+    n = n_workers or os.cpu_count() or 1
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, memory_limit=memory_per_worker,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        yield client
+
+
+def run_sweep(client, tasks: list, journal: Journal, progress=None, stage: str = "sweep", retries: int = 2) -> list:
+    """Run ``tasks`` on ``client``'s workers, skipping those ``journal`` has; their results in task order.
+
+    Parameters
+    ----------
+    client : distributed.Client
+    tasks : list of Task
+        Keys must be unique.
+    journal : Journal
+        Read for finished tasks, appended to as each of the others finishes.
+    progress : callable, optional
+        ``progress(stage, done, total)`` (:class:`rig.progress.Progress`), over all tasks.
+    stage : str
+        The progress bar's label.
+    retries : int
+        Times Dask reruns a task that raised (a task whose worker died is rerun regardless).
+
+    Returns
+    -------
+    list
+        Each task's result, in the order of ``tasks``. A task that still raised after its
+        retries has ``{"error": "<Type>: <message>"}``, journalled like any result (so a re-run
+        does not retry it unless its digest changes).
+    """
+    keys = [t.key for t in tasks]
+    if len(set(keys)) != len(keys):
+        raise ValueError("run_sweep: task keys must be unique")
+    todo = [t for t in tasks if journal.get(t) is None]
+    done = len(tasks) - len(todo)
+    if progress:
+        progress(stage, done, len(tasks))
+    futures = {client.submit(t.fn, *t.args, key=f"{t.key}-{t.digest}", pure=False, retries=retries): t for t in todo}
+    for future in as_completed(futures):
+        task = futures.pop(future)
+        try:
+            result = future.result()
+        except Exception as exc:  # the task's own failure, after its retries: journalled, not lost
+            result = {"error": f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"}
+        journal.append(task, result)
+        future.release()
+        done += 1
+        if progress:
+            progress(stage, done, len(tasks))
+    return [journal.get(t) for t in tasks]

@@ -1,0 +1,156 @@
+"""Sweeps on Dask distributed (rig/bench/sweep.py): real schedulers and workers, a killed worker, resuming.
+
+The task functions live in this module: the scheduler and worker processes the tests start get
+tests/ on their PYTHONPATH, as a lab's workers get the environment the sweep's code is in.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from rig.bench.sweep import Journal, SweepError, Task, dask_client, run_sweep, task_digest
+
+DASK = Path(sys.executable).with_name("dask")
+
+
+def slow_square(x: int, marks: str, seconds: float) -> dict:
+    """x squared after ``seconds``, leaving a file in ``marks`` for each execution (pid and time in its name)."""
+    time.sleep(seconds)
+    Path(marks, f"{x}-{os.getpid()}-{time.monotonic_ns()}").touch()
+    return {"x": x, "square": x * x, "pid": os.getpid()}
+
+
+def fails(x: int) -> dict:
+    raise RuntimeError(f"task {x} cannot be done\nsecond line")
+
+
+def _tasks(n: int, marks: Path, seconds: float) -> list:
+    return [Task(f"t{x}", slow_square, (x, str(marks), seconds), task_digest("square", x)) for x in range(n)]
+
+
+def _executions(marks: Path) -> dict:
+    out: dict = {}
+    for p in marks.iterdir():
+        out[int(p.name.split("-")[0])] = out.get(int(p.name.split("-")[0]), 0) + 1
+    return out
+
+
+@pytest.fixture
+def scheduler(tmp_path):
+    """A real ``dask scheduler`` and two ``dask worker`` processes (one thread each) on 127.0.0.1."""
+    sched_file = tmp_path / "scheduler.json"
+    here = str(Path(__file__).parent)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [here, os.environ.get("PYTHONPATH")])))
+    procs = [subprocess.Popen([str(DASK), "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(sched_file)], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    deadline = time.monotonic() + 60
+    while not sched_file.exists() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert sched_file.exists(), "dask scheduler did not start within 60 s"
+    address = json.loads(sched_file.read_text())["address"]
+    for _ in range(2):
+        procs.append(subprocess.Popen([str(DASK), "worker", address, "--nthreads", "1", "--nworkers", "1",
+                                       "--no-nanny", "--no-dashboard", "--host", "127.0.0.1"], env=env,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+    try:
+        yield address, procs[1:]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+            p.wait(timeout=30)
+
+
+def _wait_workers(client, n: int) -> None:
+    client.wait_for_workers(n, timeout=60)
+
+
+def test_sweep_on_a_real_scheduler_equals_the_serial_run(tmp_path, scheduler):
+    address, _ = scheduler
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    tasks = _tasks(4, marks, 0.2)
+    serial = [t.fn(*t.args) for t in tasks]
+    with dask_client(address) as client:
+        _wait_workers(client, 2)
+        results = run_sweep(client, tasks, Journal(tmp_path / "journal.jsonl"))
+    assert [(r["x"], r["square"]) for r in results] == [(s["x"], s["square"]) for s in serial]
+    assert len({r["pid"] for r in results}) == 2, "both workers should have taken tasks"
+    lines = [json.loads(line) for line in (tmp_path / "journal.jsonl").read_text().splitlines()]
+    assert sorted(rec["key"] for rec in lines) == ["t0", "t1", "t2", "t3"]
+
+
+def test_a_worker_killed_mid_sweep_loses_and_duplicates_nothing(tmp_path, scheduler):
+    address, workers = scheduler
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    tasks = _tasks(8, marks, 0.6)
+    killed = []
+
+    def progress(stage, done, total):
+        if done == 2 and not killed:  # both workers busy with their next tasks
+            workers[0].send_signal(signal.SIGKILL)
+            killed.append(done)
+
+    with dask_client(address) as client:
+        _wait_workers(client, 2)
+        results = run_sweep(client, tasks, Journal(tmp_path / "journal.jsonl"), progress=progress)
+    assert killed, "the worker was never killed"
+    assert [r["square"] for r in results] == [x * x for x in range(8)]
+    keys = [json.loads(line)["key"] for line in (tmp_path / "journal.jsonl").read_text().splitlines()]
+    assert sorted(keys) == sorted(t.key for t in tasks), "each task journalled exactly once"
+    assert workers[0].poll() is not None
+
+
+def test_a_resumed_sweep_does_no_task_twice(tmp_path):
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    tasks = _tasks(6, marks, 0.05)
+    journal_path = tmp_path / "journal.jsonl"
+    with dask_client(n_workers=2) as client:
+        first = Journal(journal_path)
+        for t in tasks[:3]:  # a sweep that got this far before it was stopped
+            first.append(t, client.submit(t.fn, *t.args).result())
+        with journal_path.open("a") as fh:
+            fh.write('{"key": "t3", "digest": "')  # and was killed while writing the next line
+        before = _executions(marks)
+        results = run_sweep(client, tasks, Journal(journal_path))
+    after = _executions(marks)
+    assert [r["square"] for r in results] == [x * x for x in range(6)]
+    assert {x: after.get(x, 0) - before.get(x, 0) for x in range(6)} == {0: 0, 1: 0, 2: 0, 3: 1, 4: 1, 5: 1}
+    assert len(journal_path.read_text().splitlines()) == 6
+
+
+def test_a_changed_digest_runs_the_task_again_and_a_failure_is_journalled(tmp_path):
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    journal = Journal(tmp_path / "j.jsonl")
+    with dask_client(n_workers=1) as client:
+        run_sweep(client, _tasks(2, marks, 0.0), journal)
+        changed = [Task(t.key, t.fn, t.args, t.digest + "x") for t in _tasks(2, marks, 0.0)]
+        run_sweep(client, changed, journal)
+        bad = run_sweep(client, [Task("bad", fails, (7,), "d")], journal, retries=0)
+    assert _executions(marks) == {0: 2, 1: 2}
+    assert bad == [{"error": "RuntimeError: task 7 cannot be done"}]
+    assert Journal(tmp_path / "j.jsonl").get(Task("bad", fails, (7,), "d")) == bad[0]
+
+
+def test_no_scheduler_at_the_address_is_one_line():
+    with pytest.raises(SweepError, match=r"--scheduler tcp://127.0.0.1:9: no Dask scheduler answers there"):
+        with dask_client("tcp://127.0.0.1:9"):
+            pass
+
+
+def test_a_damaged_journal_line_in_the_middle_is_refused(tmp_path):
+    p = tmp_path / "j.jsonl"
+    p.write_text('{"key": "a", "digest": "d", "result": 1}\nnot json\n{"key": "b", "digest": "d", "result": 2}\n')
+    with pytest.raises(SweepError, match=r"j.jsonl:2: not a sweep journal line"):
+        Journal(p)
