@@ -15,11 +15,12 @@ import numpy as np
 from recon import fast, subpixel
 from recon.background import no_picture
 from recon.errors import FrameError
+from recon.metrics import backbone_errors
 
 __all__ = [
     "frame_shift", "frame_coefficients", "coarse_foreground", "geodesic_path", "bfs_path", "gather_profiles",
     "profile_edges", "edges_from_profiles", "design", "fit_curve", "Fitter", "bilinear_diff", "tip_along_axis",
-    "near", "energy_hits", "project", "use_numpy_path",
+    "near", "energy_hits", "project", "use_numpy_path", "compiled_and_oracle", "assert_agree",
 ]
 
 
@@ -416,3 +417,30 @@ def use_numpy_path(monkeypatch) -> None:
     monkeypatch.setattr(fast, "fit_curve", fit_curve)
     monkeypatch.setattr(fast, "_rays", fast._rays_in_python)
     monkeypatch.setattr(fast, "_project", project)
+
+
+# ----------------------------------------------------------------------------- whole reconstructions
+def compiled_and_oracle(monkeypatch, rig, backgrounds, frames):
+    """``(compiled, oracle)``: each the views' centerlines and the pair's reconstruction, the second with every
+    kernel swapped for its NumPy oracle (tests/fast_oracles.py)."""
+    out = []
+    for oracle in (False, True):
+        if oracle:
+            use_numpy_path(monkeypatch)
+        model = fast.prepare_fast(rig, backgrounds)
+        views = {n: subpixel.extract_view(model.views[n], frames[n], fast.FastParams().view) for n in model.pair}
+        out.append((views, fast.FastReconstructor(model)(frames)))
+    monkeypatch.undo()
+    return out
+
+
+def assert_agree(compiled, oracle):
+    """The views' centres and ends within 1e-5 / 1e-3 px, the backbones within 1e-3 mm."""
+    (views_a, ra), (views_b, rb) = compiled, oracle
+    for name, va in views_a.items():
+        vb = views_b[name]
+        assert va.points_px.shape == vb.points_px.shape, name
+        np.testing.assert_allclose(va.points_px, vb.points_px, atol=1e-5)
+        np.testing.assert_allclose(va.end_px, vb.end_px, atol=1e-3)
+        np.testing.assert_allclose(va.shift_px, vb.shift_px, atol=1e-3)
+    assert backbone_errors(ra.points_world_mm, rb.points_world_mm)["max_error_mm"] < 1e-3

@@ -6,7 +6,7 @@ import collections
 import numpy as np
 import pytest
 
-from test_report import make_run_dir
+from synthetic_run import make_run_dir
 
 def _read(path):
     from mcap.reader import make_reader

@@ -11,6 +11,7 @@ import fast_oracles as O
 import numpy as np
 import pytest
 import strategies as S
+from drawn_tubes import draw_tube, robot_backbone
 
 from recon import _kernels
 from recon.camera import Camera
@@ -18,8 +19,8 @@ from recon.epipolar import EpipolarFrame, align_dp, monotonic, triangulate_rays
 from recon.errors import FrameError
 from recon.fast import FastParams, FastReconstructor, _project, _rays, _rays_in_python, prepare_fast
 from recon.geometry import look_at
-from recon.metrics import backbone_errors, point_to_polyline_distances
 from recon.methods import get_method, prepare
+from recon.metrics import backbone_errors, point_to_polyline_distances
 from recon.params import params_from_dict
 from recon.rigcal import RigCalibration
 from recon.subpixel import (ViewParams, _Fitter, _near, coarse_abs_difference, extract_view, fit_curve, frame_coefficients,
@@ -187,47 +188,6 @@ def _backdrop(rng, gain=1.0):
     return img + rng.normal(0.0, 2.0, img.shape).astype(np.float32)
 
 
-def _draw_tube(img, cam, pts_mm, radii_mm, level=60.0, ss=6):
-    """Draw a tube of given radius along a 3D backbone, anti-aliased by ``ss`` x ``ss`` supersampling."""
-    from scipy.spatial import cKDTree
-
-    uv, z = cam.project(pts_mm)
-    r_px = radii_mm * cam.K[0, 0] / z
-    # Dense centerline (0.05 px) and the pixels near it.
-    seg = np.linalg.norm(np.diff(uv, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    t = np.arange(0.0, s[-1], 0.05)
-    c = np.stack([np.interp(t, s, uv[:, 0]), np.interp(t, s, uv[:, 1])], axis=1)
-    rc = np.interp(t, s, r_px)
-    band = np.zeros(img.shape, np.uint8)
-    import cv2
-
-    cv2.polylines(band, [np.rint(uv).astype(np.int32)], False, 1, int(2 * r_px.max() + 5))
-    vy, vx = np.nonzero(band)
-    sub = (np.arange(ss) + 0.5) / ss - 0.5
-    su, sv = np.meshgrid(sub, sub)
-    P = np.stack([(vx[:, None] + su.ravel()).ravel(), (vy[:, None] + sv.ravel()).ravel()], axis=1)
-    dist, k = cKDTree(c).query(P)
-    cov = (dist <= rc[k]).reshape(len(vx), ss * ss).mean(axis=1)
-    img[vy, vx] = img[vy, vx] * (1.0 - cov) + level * cov
-    return img
-
-
-def _robot(n=400, straight=35.0, length=80.0, bend_axis=(0.0, 0.6, 0.8)):
-    s = np.linspace(0.0, length, n)
-    ds = s[1] - s[0]
-    pts = np.zeros((n, 3))
-    d = np.array([1.0, 0.0, 0.0])
-    ax = np.asarray(bend_axis) / np.linalg.norm(bend_axis)
-    for i in range(1, n):
-        if s[i] > straight:
-            d = d + ds / 60.0 * np.cross(ax, d)
-            d /= np.linalg.norm(d)
-        pts[i] = pts[i - 1] + d * ds
-    radii = np.where(s <= 50.0, 0.8, 0.5)
-    return s, pts, radii
-
-
 @pytest.fixture(scope="module")
 def synthetic():
     rng = np.random.default_rng(3)
@@ -238,13 +198,13 @@ def synthetic():
 
 
 def _frames(rig, rng, pts, radii):
-    return {n: np.clip(_draw_tube(_backdrop(rng, 1.01), rig[n], pts, radii), 0, 255).astype(np.uint8) for n in rig.names}
+    return {n: np.clip(draw_tube(_backdrop(rng, 1.01), rig[n], pts, radii), 0, 255).astype(np.uint8) for n in rig.names}
 
 
 def test_subpixel_centerline_of_a_drawn_tube(synthetic):
     """Centres of an anti-aliased tube of known width lie within 0.2 px of its true centerline."""
     rig, backgrounds, rng = synthetic
-    s, pts, radii = _robot()
+    s, pts, radii = robot_backbone()
     frames = _frames(rig, rng, pts, radii)
     params = FastParams()
     model = prepare_fast(rig, backgrounds, params)
@@ -277,7 +237,7 @@ def test_profile_edges_partial_coverage():
 
 def test_synthetic_robot_reconstruction(synthetic):
     rig, backgrounds, rng = synthetic
-    s, pts, radii = _robot()
+    s, pts, radii = robot_backbone()
     rec = prepare("fast", rig, backgrounds)
     r = rec(_frames(rig, rng, pts, radii))
     e = backbone_errors(r.points_world_mm, pts)
@@ -301,12 +261,12 @@ def test_coarse_difference_does_not_cancel_across_a_thin_tube(synthetic):
     assert np.all(diff[[0, 2]] < 12.0)
 
 
-def test_clutter_from_the_base_to_the_border_is_not_the_robot(synthetic):
+def test_clutter_from_the_base_to_the_border_is_not_therobot_backbone(synthetic):
     """A thin dark line from the robot's base to the left border (a cable, or the actuation unit's edges
     flickering with jitter) joins the robot's coarse region; only the far end of the robot's path, its tip,
     decides whether the robot leaves the view."""
     rig, backgrounds, rng = synthetic
-    s, pts, radii = _robot()
+    s, pts, radii = robot_backbone()
     frames = _frames(rig, rng, pts, radii)
     for name, img in frames.items():
         (u, v), = rig[name].project(np.zeros((1, 3)))[0]
@@ -319,7 +279,7 @@ def test_clutter_from_the_base_to_the_border_is_not_the_robot(synthetic):
 
 def test_robot_partly_out_of_view_fails_clearly(synthetic):
     rig, backgrounds, rng = synthetic
-    s, pts, radii = _robot(length=140.0, straight=120.0)  # the tip runs off the right of both images
+    s, pts, radii = robot_backbone(length=140.0, straight=120.0)  # the tip runs off the right of both images
     rec = prepare("fast", rig, backgrounds)
     with pytest.raises(FrameError, match=r"^side: robot partly out of view \(its silhouette reaches the right image border\)$"):
         rec(_frames(rig, rng, pts, radii))
@@ -391,36 +351,11 @@ def test_view_parameters_are_a_nested_table():
         params_from_dict(FastParams, {"edge_min_dn": 6.5})
 
 
-def _compiled_and_oracle(monkeypatch, rig, backgrounds, frames):
-    """``(compiled, oracle)``: each the views' centerlines and the pair's reconstruction, the second with every
-    kernel swapped for its NumPy oracle (tests/fast_oracles.py)."""
-    out = []
-    for oracle in (False, True):
-        if oracle:
-            O.use_numpy_path(monkeypatch)
-        model = prepare_fast(rig, backgrounds)
-        views = {n: extract_view(model.views[n], frames[n], FastParams().view) for n in model.pair}
-        out.append((views, FastReconstructor(model)(frames)))
-    monkeypatch.undo()
-    return out
-
-
-def _assert_agree(compiled, oracle):
-    (views_a, ra), (views_b, rb) = compiled, oracle
-    for name, va in views_a.items():
-        vb = views_b[name]
-        assert va.points_px.shape == vb.points_px.shape, name
-        np.testing.assert_allclose(va.points_px, vb.points_px, atol=1e-5)
-        np.testing.assert_allclose(va.end_px, vb.end_px, atol=1e-3)
-        np.testing.assert_allclose(va.shift_px, vb.shift_px, atol=1e-3)
-    assert backbone_errors(ra.points_world_mm, rb.points_world_mm)["max_error_mm"] < 1e-3
-
-
 def test_compiled_kernels_agree_with_their_numpy_oracles(synthetic, monkeypatch):
     """The numba kernels and the NumPy oracles give the same centerline and backbone."""
     rig, backgrounds, rng = synthetic
-    s, pts, radii = _robot()
-    _assert_agree(*_compiled_and_oracle(monkeypatch, rig, backgrounds, _frames(rig, rng, pts, radii)))
+    s, pts, radii = robot_backbone()
+    O.assert_agree(*O.compiled_and_oracle(monkeypatch, rig, backgrounds, _frames(rig, rng, pts, radii)))
 
 
 def test_frame_shift_and_coefficients_agree_with_their_oracles(paper_scene, paper_frames):

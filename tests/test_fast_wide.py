@@ -8,13 +8,14 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import pytest
-from test_fast_method import _assert_agree, _compiled_and_oracle, _draw_tube, _robot
+from drawn_tubes import draw_tube, robot_backbone
+from fast_oracles import assert_agree, compiled_and_oracle
 
 from recon.camera import Camera
 from recon.errors import FrameError
 from recon.geometry import look_at
-from recon.metrics import backbone_errors
 from recon.methods import prepare
+from recon.metrics import backbone_errors
 from recon.rigcal import RigCalibration
 
 K = np.array([[2580.0, 0.0, 511.5], [0.0, 2580.0, 383.5], [0.0, 0.0, 1.0]])
@@ -51,12 +52,12 @@ def test_masks_base_outside_the_view_non_orthogonal(background):
     the base ~140 px left of the side image: the robot enters across its border."""
     rig = _rig(75.0, target=(75.0, 0.0, 0.0))
     assert rig["side"].project(np.zeros((1, 3)))[0][0, 0] < -50  # the base is out of the side view
-    s, pts, radii = _robot(length=95.0, straight=45.0)
+    s, pts, radii = robot_backbone(length=95.0, straight=45.0)
     fg = 255 - background
     backgrounds = {n: np.full((8, 768, 1024), background, np.uint8) for n in rig.names}
     frames = {}
     for n in rig.names:
-        drawn = _draw_tube(np.zeros((768, 1024), np.float32), rig[n], pts, radii, level=255.0)
+        drawn = draw_tube(np.zeros((768, 1024), np.float32), rig[n], pts, radii, level=255.0)
         frames[n] = np.where(drawn > 127, fg, background).astype(np.uint8)
     r = prepare("fast", rig, backgrounds)(frames)
     e = backbone_errors(r.points_world_mm, _visible(rig, pts))
@@ -85,8 +86,8 @@ def textured():
 
     backgrounds = {n: np.stack([np.clip(shot(n, 1 + 0.03 * rng.standard_normal()), 0, 255).astype(np.uint8) for _ in range(8)])
                    for n in rig.names}
-    s, pts, radii = _robot(length=85.0, straight=40.0, bend_axis=(0.0, 0.8, 0.6))
-    frames = {n: np.clip(_draw_tube(shot(n, 1.02), rig[n], pts, radii, level=85.0), 0, 255).astype(np.uint8)
+    s, pts, radii = robot_backbone(length=85.0, straight=40.0, bend_axis=(0.0, 0.8, 0.6))
+    frames = {n: np.clip(draw_tube(shot(n, 1.02), rig[n], pts, radii, level=85.0), 0, 255).astype(np.uint8)
               for n in rig.names}
     return rig, backgrounds, frames, pts
 
@@ -104,7 +105,7 @@ def test_compiled_kernels_agree_with_their_numpy_oracles_on_texture(textured, mo
     """Where the tube fades into the texture it is followed past the coarse path, across gaps and by its core
     (ridge hits): the numba kernels and the NumPy oracles still agree."""
     rig, backgrounds, frames, _ = textured
-    _assert_agree(*_compiled_and_oracle(monkeypatch, rig, backgrounds, frames))
+    assert_agree(*compiled_and_oracle(monkeypatch, rig, backgrounds, frames))
 
 
 def test_base_out_of_view_robot_entering_away_from_its_axis():

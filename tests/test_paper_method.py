@@ -5,39 +5,14 @@ from dataclasses import replace
 import cv2
 import numpy as np
 import pytest
+from drawn_tubes import PAPER_K, paper_rig, paper_robot
 
-from recon.camera import Camera
 from recon.errors import FrameError
-from recon.geometry import look_at
 from recon.metrics import backbone_errors
 from recon.paper import PaperParams, camera_order, prepare_paper, reconstruct_paper
 from recon.rigcal import RigCalibration
 
-K = np.array([[2580.0, 0.0, 511.5], [0.0, 2580.0, 383.5], [0.0, 0.0, 1.0]])
-DIST = (-0.08, 0.1, 0.0005, -0.0007, 0.0)
 OUTER_MM, INNER_MM, OUTER_LENGTH_MM = 0.8, 0.5, 60.0
-
-
-def make_rig():
-    # "top" listed first: the method must still carve the side view first.
-    top = Camera("top", 1024, 768, K, dist=DIST, T_cam_world=look_at([50, 0, 300], [50, 0, 0], [0, -1, 0]))
-    side = Camera("side", 1024, 768, K, dist=DIST, T_cam_world=look_at([50, -300, 0], [50, 0, 0], [0, 0, -1]))
-    return RigCalibration({"top": top, "side": side}, base_point_world_mm=[0, 0, 0], insertion_axis_world=[1, 0, 0])
-
-
-def robot_backbone(n=1900):
-    """Base at the origin along +x for 35 mm, then bending at 1/60 mm^-1 about (0, 0.6, 0.8) to 95 mm."""
-    s = np.linspace(0.0, 95.0, n)
-    ds = s[1] - s[0]
-    pts = np.zeros((n, 3))
-    d = np.array([1.0, 0.0, 0.0])
-    axis = np.array([0.0, 0.6, 0.8])
-    for i in range(1, n):
-        if s[i] > 35.0:
-            d = d + ds / 60.0 * np.cross(axis, d)
-            d /= np.linalg.norm(d)
-        pts[i] = pts[i - 1] + d * ds
-    return s, pts
 
 
 def background_image():
@@ -52,7 +27,7 @@ def render(cam, rng, gain=1.0, backbone=None):
         s, pts = backbone
         uv, z = cam.project(pts)
         mask = np.zeros((768, 1024), np.uint8)
-        radius_px = np.where(s <= OUTER_LENGTH_MM, OUTER_MM, INNER_MM) * K[0, 0] / z
+        radius_px = np.where(s <= OUTER_LENGTH_MM, OUTER_MM, INNER_MM) * PAPER_K[0, 0] / z
         for (u, v), r in zip(np.round(uv * 16).astype(int), np.round(radius_px * 16).astype(int)):
             cv2.circle(mask, (int(u), int(v)), int(r), 255, -1, cv2.LINE_8, 4)
         img[mask > 0] = 30.0
@@ -62,7 +37,7 @@ def render(cam, rng, gain=1.0, backbone=None):
 @pytest.fixture(scope="module")
 def setup():
     rng = np.random.default_rng(0)
-    rig = make_rig()
+    rig = paper_rig()
     backgrounds = {
         name: np.stack([render(cam, rng, gain=1.0 + 0.03 * rng.standard_normal()) for _ in range(10)])
         for name, cam in rig.cameras.items()
@@ -74,7 +49,7 @@ def setup():
 
 def test_reconstructs_known_robot(setup):
     rig, model, params, rng = setup
-    s, truth = backbone = robot_backbone()
+    s, truth = backbone = paper_robot()
     frames = {name: render(cam, rng, gain=1.02, backbone=backbone) for name, cam in rig.cameras.items()}
     rec = reconstruct_paper(model, frames, params)
     voxel = float(rec.voxel_size_mm.max())
@@ -100,7 +75,7 @@ def test_a_view_that_lost_the_tip_makes_the_frame_suspect(setup):
     """The top view shows the robot only to s = 70 mm (a faint tip its silhouette misses): the carving
     stops there, the side view's centerline goes on for ~25 mm (~200 px) beyond the reprojected tip."""
     rig, model, params, rng = setup
-    s, pts = robot_backbone()
+    s, pts = paper_robot()
     short = s <= 70.0
     frames = {"side": render(rig["side"], rng, backbone=(s, pts)), "top": render(rig["top"], rng, backbone=(s[short], pts[short]))}
     rec = reconstruct_paper(model, frames, params)
@@ -119,7 +94,7 @@ def test_centerline_beyond_tip_counts_a_dashed_continuation(setup):
 
     rig = setup[0]
     cam = rig["side"]
-    s, pts = robot_backbone()
+    s, pts = paper_robot()
     uv = cam.project(pts)[0]
     line = np.zeros((cam.height, cam.width), np.uint8)
     half = len(pts) // 2
@@ -143,7 +118,7 @@ def test_a_tip_hooking_off_a_silhouette_is_cut_back(setup):
     from recon.paper import _trim_tip
 
     rig = setup[0]
-    s, pts = robot_backbone(400)
+    s, pts = paper_robot(400)
     cams = [rig["side"], rig["top"]]
     sils = []
     for cam in cams:
@@ -179,7 +154,7 @@ def test_frame_without_robot(setup):
 
 def test_robot_leaving_the_view(setup):
     rig, model, params, rng = setup
-    s, pts = robot_backbone()
+    s, pts = paper_robot()
     shifted = (s, pts + np.array([40.0, 0.0, 0.0]))  # the tip runs off the right of both images
     frames = {name: render(cam, rng, backbone=shifted) for name, cam in rig.cameras.items()}
     with pytest.raises(FrameError, match=r"^side: robot leaves the view at the right border$"):
@@ -188,7 +163,7 @@ def test_robot_leaving_the_view(setup):
 
 def test_bad_frames(setup):
     rig, model, params, rng = setup
-    good = render(rig["side"], rng, backbone=robot_backbone())
+    good = render(rig["side"], rng, backbone=paper_robot())
     with pytest.raises(FrameError, match=r"^top: no frame$"):
         reconstruct_paper(model, {"side": good}, params)
     with pytest.raises(FrameError, match=r"^side: frame is 512x384 but the background model is 1024x768$"):
@@ -200,7 +175,7 @@ def test_bad_frames(setup):
 
 
 def test_prepare_needs_background_frames():
-    rig = make_rig()
+    rig = paper_rig()
     with pytest.raises(ValueError, match=r"^side: need at least k\+1=6 background frames, got 3$"):
         prepare_paper(rig, {"side": np.zeros((3, 768, 1024), np.uint8), "top": np.zeros((8, 768, 1024), np.uint8)})
     with pytest.raises(ValueError, match=r"^side: no background frames$"):
@@ -220,7 +195,7 @@ def test_base_outside_the_view(setup):
         assert base_borders(cam, [50.0, 0.0, 0.0]) == []
     backgrounds = {n: np.stack([render(c, rng) for _ in range(8)]) for n, c in rig.cameras.items()}
     m = prepare_paper(moved, backgrounds, params)
-    s, pts = robot_backbone()
+    s, pts = paper_robot()
     truth = pts + shift
     frames = {name: render(cam, rng, backbone=(s, truth)) for name, cam in rig.cameras.items()}
     rec = reconstruct_paper(m, frames, params)

@@ -2,10 +2,10 @@
 import cv2
 import numpy as np
 import pytest
+from drawn_tubes import paper_rig, paper_robot
 
 from recon.metrics import backbone_errors
 from recon.subvoxel import SubvoxelParams, refine_backbone
-from test_paper_method import make_rig, robot_backbone
 
 
 def centerline_image(cam, pts):
@@ -17,8 +17,8 @@ def centerline_image(cam, pts):
 
 @pytest.fixture(scope="module")
 def scene():
-    rig = make_rig()
-    s, truth = robot_backbone(400)
+    rig = paper_rig()
+    s, truth = paper_robot(400)
     cams = [rig["side"], rig["top"]]
     return cams, [centerline_image(c, truth) for c in cams], s, truth
 
