@@ -16,8 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.backbone_csv import read_backbone_csv
-from rig.rundir import JOURNAL, last_journal_record
+from rig.rundir import JOURNAL, last_journal_record, record_backbone
 from rig.session import read_image
 
 __all__ = ["LiveLogger", "prepare_frame", "import_rerun", "NOT_INSTALLED"]
@@ -141,9 +140,11 @@ class LiveLogger:
     def watch(self, session_dir, out_dir, progress=None):
         """A ``progress(stage, done, total, **postfix)`` callable for ``reconstruct_session``.
 
-        After each frame the run has already appended the frame's record to its
-        journal (``frames.jsonl``) and written the frame's CSV; this reads them (and the session's images and truth) and logs the frame,
-        then calls ``progress``. Without rerun it returns ``progress`` itself.
+        After each frame the run (:class:`rig.rundir.RunWriter`: ``reconstruct``, ``run``,
+        ``experiment``'s ``live/``) has already appended the frame's record to its journal
+        (``frames.jsonl``) and written the backbone CSV the record lists; this reads them
+        through :mod:`rig.rundir` (and the session's images and truth), logs the frame, then
+        calls ``progress``. Without rerun it returns ``progress`` itself.
         """
         if not self.enabled:
             return progress
@@ -180,10 +181,7 @@ class LiveLogger:
             p = session_dir / "frames" / cam / f"{fr:06d}.png"
             if p.exists():
                 images[cam] = read_image(p)
-        pts = None
-        csv = out_dir / "frames" / f"{fr:06d}.csv"
-        if r["status"] == "ok" and csv.exists():
-            pts = read_backbone_csv(csv)
+        pts = record_backbone(out_dir, r)  # ok and suspect frames list theirs; None for a failed one
         truth_mm, truth_uv = None, {}
         tp = session_dir / "truth" / f"{fr:06d}.npz"
         if tp.exists():

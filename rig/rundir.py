@@ -1,6 +1,8 @@
-"""The bookkeeping files of a run directory, and who may write into one.
+"""The run directory: its formats, the one writer of a run and the one reader of it.
 
-One owner for these formats (docs/outputs.md):
+One owner for these formats (docs/outputs.md); :class:`RunWriter` writes them
+(``reconstruct``, ``run``, the bench's runs and ``experiment``'s ``live/``) and
+:func:`read_run` reads them back (``report``, ``verify``, ``fit``, ``export``):
 
 * ``frames.jsonl``, the run's journal: line 1 is a header (``format``
   ``"ctr-bench-frames"``, ``run_id``, ``method``, ``params``, ``selfcheck``,
@@ -8,9 +10,15 @@ One owner for these formats (docs/outputs.md):
   frame (the per-frame dict of summary.json), appended and flushed as the frame
   finishes and fsynced every :data:`FSYNC_EVERY_S`. A killed run keeps every
   line it flushed; ``--resume`` and ``report`` rebuild the run from it.
+* ``frames/NNNNNN.csv`` (:mod:`rig.backbone_csv`) and ``frames.csv``: each
+  finished frame's backbone and table row, written with its journal line.
 * ``summary.json``: the aggregates with the run's ``run_id``, ``complete`` and
   the ``files`` it wrote, replaced atomically (:func:`write_json_atomic`).
 * ``backbones.npz``: every backbone, written at the end; the summary records its SHA-1.
+
+A frame's record describes its backbone (:func:`describe_result`) and, where
+there is ground truth, its errors (:func:`rig.scoring.score_frame`: over what every camera
+sees, for every command that scores).
 
 A directory holding an earlier run's files (:func:`earlier_files`) is refused
 (:func:`check_claim`) unless the earlier run is removed (``overwrite``: exactly
@@ -39,11 +47,13 @@ import numpy as np
 
 from recon.params import params_to_dict
 from recon.selfcheck import SelfCheckParams
+from rig.backbone_csv import FrameTable, read_backbone_csv, write_backbone_csv
 
 __all__ = ["summarize", "params_as_dict", "finite_or_none", "SUMMARY", "JOURNAL", "TABLE", "BACKBONES", "FRAMES_DIR", "RunDirError", "WriteError", "writing",
            "json_safe", "json_text", "write_json_atomic", "write_summary_json", "new_run_id", "earlier_files", "remove_files",
            "check_claim", "journal_header", "Journal", "read_journal", "read_summary", "write_backbones_npz", "read_backbones_npz",
-           "MODES"]
+           "MODES", "last_journal_record", "RunWriter", "read_run", "kept_frames", "describe_result",
+           "jump_record", "record_backbone", "SUMMARY_EVERY_S", "SUMMARY_COST_FACTOR"]
 
 SUMMARY = "summary.json"
 JOURNAL = "frames.jsonl"
@@ -57,6 +67,10 @@ MODES = ("refuse", "overwrite", "resume")
 #: The journal is synced to disk at most this often (a flush per line already survives SIGKILL;
 #: the sync bounds what a power cut can take).
 FSYNC_EVERY_S = 2.0
+#: summary.json is rewritten at most this often while a run goes (the journal has every frame at once)...
+SUMMARY_EVERY_S = 5.0
+#: ...and at most once per this many times its own writing time: its size grows with the run, its share of the time does not.
+SUMMARY_COST_FACTOR = 20.0
 
 # Files (relative to the run directory) that a run, or a report built on it, writes.
 _RUN_FILES = (SUMMARY, JOURNAL, TABLE, BACKBONES, f".{SUMMARY}.tmp", f".{JOURNAL}.tmp", f".{BACKBONES}.tmp.npz")
@@ -578,3 +592,241 @@ def summarize(records: list, method: str, params, session_dir, mm_px: float, sel
         "ms_per_pair_p95": finite_or_none(np.percentile(ms, 95)) if ms.size else None,
         "per_frame": records,
     }
+
+
+# ----------------------------------------------------------------------------- a frame's record
+def describe_result(result, pts: np.ndarray) -> dict:
+    """What a frame's record says of its reconstruction: points, length, tip, stages' times, voxels.
+
+    Parameters
+    ----------
+    result : a method's result
+        Its ``length_mm``, ``tip_world_mm`` (world, mm), ``transition_s_mm``,
+        ``timings_ms`` and, for the methods that carve, ``voxel_size_mm``.
+    pts : (n, 3) array
+        Its backbone (world, mm).
+    """
+    out = {
+        "n_points": int(len(pts)),
+        "length_mm": finite_or_none(result.length_mm),
+        "tip_world_mm": [float(v) for v in result.tip_world_mm],
+        "transition_s_mm": finite_or_none(result.transition_s_mm),
+        "timings_ms": {k: round(float(v), 3) for k, v in result.timings_ms.items()},
+    }
+    voxel = getattr(result, "voxel_size_mm", None)
+    if voxel is not None:
+        out["voxel_size_mm"] = [float(v) for v in np.broadcast_to(np.asarray(voxel, float), (3,))]
+    return out
+
+
+def jump_record(result) -> dict:
+    """The fast method's temporal check as a frame's record holds it: ``jump_flag`` and its ``jump_reason``.
+
+    Recorded only: the frame's status stays what the self-check makes it.
+    """
+    flag = bool(getattr(result, "jump_flag", False))
+    return {"jump_flag": flag, "jump_reason": getattr(result, "jump_reason", None) if flag else None}
+
+
+# ----------------------------------------------------------------------------- the writer
+class RunWriter:
+    """The files of one run as it goes (docs/outputs.md): the one writer of a run directory.
+
+    Per finished frame: its backbone CSV, a journal line (flushed: the frame is
+    kept from then on, SIGKILL included) and a frames.csv row; summary.json
+    every :data:`SUMMARY_EVERY_S` at most (never more than 1/:data:`SUMMARY_COST_FACTOR`
+    of the time), so that the cost per frame does not grow with the run.
+    A write that fails raises :class:`WriteError` naming the file.
+
+    Parameters
+    ----------
+    out : Path
+        The run directory (claimed: :func:`check_claim`; created when missing).
+    header : dict
+        The journal header (:func:`journal_header`, with ``mm_per_px``).
+    kept : list of dict, optional
+        Records of the frames a resumed run keeps, and ``backbones`` their backbones
+        (:func:`kept_frames`).
+    """
+
+    def __init__(self, out, header: dict, kept=(), backbones=None):
+        self.out, self.header = Path(out), header
+        self.records, self.backbones = list(kept), dict(backbones or {})
+        self._lines = [json_text(r, indent=None) for r in self.records]  # each frame's JSON, encoded once
+        self.files = {"journal": JOURNAL, "table": TABLE, "backbones": None, "backbones_sha1": None}
+        with writing(self.out / FRAMES_DIR):
+            (self.out / FRAMES_DIR).mkdir(parents=True, exist_ok=True)
+        self._journal = Journal(self.out / JOURNAL, header, self.records)
+        with writing(self.out / TABLE):
+            self._table = FrameTable(self.out / TABLE, self.records)
+        self._next_summary = 0.0
+        self.write_summary()  # the directory names its run from the start
+
+    def add(self, rec: dict, pts: np.ndarray | None) -> None:
+        """Write a finished frame: its backbone (world, mm; None: failed), journal line, table row; the summary when due."""
+        name = f"{FRAMES_DIR}/{rec['frame']:06d}.csv"
+        with writing(self.out / name):
+            if pts is not None:
+                rec.update(backbone_csv=name, backbone_sha1=write_backbone_csv(self.out / name, pts))
+                self.backbones[rec["frame"]] = pts
+            else:  # an earlier try of this frame, cut by a kill before its journal line, may have left one
+                (self.out / name).unlink(missing_ok=True)
+        self._lines.append(self._journal.add(rec))
+        with writing(self._table.path):
+            self._table.add(rec)
+        self.records.append(rec)
+        if time.monotonic() >= self._next_summary:
+            self.write_summary()
+
+    def summary(self, complete: bool = False) -> dict:
+        """The summary of the frames written so far."""
+        h = self.header
+        return summarize(self.records, h["method"], h["params"], h["session"], h["mm_per_px"], h["selfcheck"],
+                         run_id=h["run_id"], complete=complete, files=self.files, session_notes=h.get("session_notes", ()))
+
+    def write_summary(self, complete: bool = False) -> dict:
+        """Write summary.json now; the next one while the run goes is due after a pause proportional to its cost."""
+        t0 = time.monotonic()
+        summary = self.summary(complete)
+        write_summary_json(self.out / SUMMARY, {k: v for k, v in summary.items() if k != "per_frame"}, self._lines)
+        cost = time.monotonic() - t0
+        self._next_summary = time.monotonic() + max(SUMMARY_EVERY_S, SUMMARY_COST_FACTOR * cost)
+        return summary
+
+    def finish(self) -> dict:
+        """Write backbones.npz and the complete summary; close. Returns the summary (unknown values as None)."""
+        self._journal.sync()
+        sha1 = write_backbones_npz(self.out / BACKBONES, self.backbones)
+        self.files.update(backbones=BACKBONES, backbones_sha1=sha1)  # listed once it is all there
+        summary = self.write_summary(complete=True)
+        self.close()
+        return json_safe(summary)
+
+    def abort(self, exc: BaseException) -> None:
+        """After an error or an interrupt: keep what is finished (journal synced, summary of it), best effort."""
+        if isinstance(exc, WriteError):
+            exc.note = f"the {len(self.records)} frames finished are kept in {self.out / JOURNAL} (--resume continues)"
+        try:
+            self.write_summary()
+        except OSError:
+            pass  # the disk that refused a frame may refuse the summary too; the journal has the frames
+        try:
+            self.close()
+        except OSError:
+            pass
+
+    def close(self) -> None:
+        self._journal.close()
+        self._table.close()
+
+
+def kept_frames(out, records: list) -> tuple:
+    """The records and backbones a resumed run keeps: every finished frame whose backbone file is as written.
+
+    A reconstructed frame whose CSV is missing or changed is done again.
+
+    Returns
+    -------
+    (records, backbones) : (list of dict, dict frame -> (n, 3) world mm)
+    """
+    kept, backbones = [], {}
+    for rec in {r["frame"]: r for r in records}.values():
+        try:
+            pts = record_backbone(out, rec)
+        except (OSError, ValueError):
+            continue
+        if pts is not None:
+            backbones[rec["frame"]] = pts
+        kept.append(rec)
+    return kept, backbones
+
+
+def record_backbone(out, rec: dict) -> np.ndarray | None:
+    """The backbone (n, 3) world mm a frame's record lists (``backbone_csv``, checked against its ``backbone_sha1``).
+
+    None when the record lists none (a failed frame).
+
+    Raises
+    ------
+    ValueError
+        The file is missing, unreadable, or not the one the run wrote (one line naming it).
+    """
+    if not rec.get("backbone_csv"):
+        return None
+    path = Path(out) / rec["backbone_csv"]
+    if not path.is_file():
+        raise ValueError(f"{path}: missing (the record of frame {rec['frame']} lists it)")
+    return read_backbone_csv(path, sha1=rec.get("backbone_sha1"))
+
+
+# ----------------------------------------------------------------------------- the reader
+def read_run(out_dir) -> tuple:
+    """A run directory's summary and backbones, read only from the files its summary lists.
+
+    A summary that is not ``complete`` (the run was killed or is still going:
+    summary.json is rewritten every few seconds) is rebuilt from the journal.
+    Backbones come from the ``backbones.npz`` the summary lists, else the
+    per-frame CSVs its records list; a file of another run (another SHA-1
+    than the summary records) is an error naming it. A summary without ``run_id``
+    (older ctr-bench, ``experiment``'s ``live/`` before it had a journal) lists frames
+    only: the backbones of its reconstructed frames are read, and no others.
+
+    Returns
+    -------
+    (summary, backbones) : (dict, dict frame -> (n, 3) world mm)
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        One line naming the file.
+    """
+    out = Path(out_dir)
+    summary = read_summary(out / SUMMARY)
+    if summary.get("run_id") is None:
+        return summary, _unlisted_backbones(out, summary)
+    if not summary.get("complete"):
+        summary = _rebuilt_summary(out, summary)
+    return summary, _listed_backbones(out, summary)
+
+
+def _rebuilt_summary(out: Path, summary: dict) -> dict:
+    """The summary of a run cut short, rebuilt from its journal (which has every finished frame)."""
+    path = out / ((summary.get("files") or {}).get("journal") or JOURNAL)
+    if not path.exists():
+        return summary
+    header, records = read_journal(path)
+    if header.get("run_id") != summary["run_id"]:
+        raise ValueError(f"{path}: written by run {header.get('run_id')}, not by run {summary['run_id']} that "
+                         f"{out / SUMMARY} describes (a stale file of another run)")
+    records = list({r["frame"]: r for r in records}.values())
+    return json_safe(summarize(records, header.get("method"), header.get("params"), header.get("session"),
+                               header.get("mm_per_px"), header.get("selfcheck"), run_id=header["run_id"],
+                               session_notes=header.get("session_notes", ())))
+
+
+def _listed_backbones(out: Path, summary: dict) -> dict:
+    """Backbones from the files a summary with a run id lists: its backbones.npz, else its per-frame CSVs."""
+    files = summary.get("files") or {}
+    if files.get("backbones"):
+        return read_backbones_npz(out / files["backbones"], sha1=files.get("backbones_sha1"))
+    found = {}
+    for rec in summary.get("per_frame", []):
+        pts = record_backbone(out, rec)
+        if pts is not None:
+            found[int(rec["frame"])] = pts
+    return found
+
+
+def _unlisted_backbones(out: Path, summary: dict) -> dict:
+    """Backbones of the frames a summary without run id says were reconstructed (backbones.npz, else their CSVs)."""
+    wanted = {int(r["frame"]) for r in summary.get("per_frame", []) if r.get("status") in ("ok", "suspect")}
+    if (out / BACKBONES).exists():
+        return read_backbones_npz(out / BACKBONES, frames=wanted)
+    found = {}
+    for i in sorted(wanted):
+        path = out / FRAMES_DIR / f"{i:06d}.csv"
+        try:
+            found[i] = read_backbone_csv(path)
+        except (OSError, ValueError):
+            continue  # a run cut short may not have written it; the frame is drawn without a backbone
+    return found

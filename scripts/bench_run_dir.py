@@ -43,9 +43,11 @@ def _record(k: int) -> dict:
             "mean_error_mm": 0.05, "max_error_mm": 0.09, "tip_error_mm": 0.08, "length_error_mm": -0.1, "scored_fraction": 1.0}
 
 
-def _time_summaries(rr) -> list:
+def _time_summaries() -> list:
     """(frames in the summary, seconds) of every summary.json write from now on."""
-    writes, real = [], rr.RunWriter.write_summary
+    import rig.rundir
+
+    writes, real = [], rig.rundir.RunWriter.write_summary
 
     def timed(self, complete=False):
         t0 = time.perf_counter()
@@ -53,7 +55,7 @@ def _time_summaries(rr) -> list:
         writes.append((len(self.records), time.perf_counter() - t0))
         return summary
 
-    rr.RunWriter.write_summary = timed
+    rig.rundir.RunWriter.write_summary = timed
     return writes
 
 
@@ -65,14 +67,14 @@ def _print_summaries(writes: list) -> None:
 
 def bookkeeping(n: int, out: Path, every_frame: bool) -> list:
     """Seconds per frame of the run's bookkeeping over ``n`` frames."""
-    import rig.bench.reconstruct as rr
+    import rig.rundir as rr
     from rig.rundir import journal_header
 
     if every_frame:
         rr.SUMMARY_EVERY_S, rr.SUMMARY_COST_FACTOR = 0.0, 0.0
     header = {**journal_header("fast", {"k": 5}, {"max_unexplained_fraction": 0.2}, out / "session"), "mm_per_px": 0.116}
     pts = np.column_stack([np.linspace(0, 85, 120), np.linspace(0, 17, 120), np.linspace(0, 9, 120)])
-    writes = _time_summaries(rr)
+    writes = _time_summaries()
     writer = rr.RunWriter(out, header)
     times = []
     for k in range(n):
@@ -119,7 +121,7 @@ def reconstruct(n: int, out: Path, method: str, selfcheck: bool) -> list:
 
     cv2.setNumThreads(1)
     session = _long_session(out / "session", n)
-    stamps, writes = [], _time_summaries(rr)
+    stamps, writes = [], _time_summaries()
     summary = rr.reconstruct_session(session, out / "run", method, progress=lambda *a, **k: stamps.append(time.perf_counter()),
                                      selfcheck=SelfCheckParams() if selfcheck else None)
     print(f"{summary['frames']} frames, {summary['failed_frames']} failed, {summary['suspect_frames']} suspect; "

@@ -38,6 +38,7 @@ from rig.hw.camera import Camera, CameraError, CameraPair, EndOfStream, OpenCVCa
 from rig.hw.experiment import ExperimentRunner, SequenceError, load_sequence
 from rig.hw.rigfile import RigFileError, load_rig_file, rig_file_from_dict
 from rig.hw.virtual import Trapezoid, TwinActuator
+from rig.rundir import JOURNAL, read_journal, read_run
 from rig.scenefiles import scenes_dir
 from rig.session import Session
 
@@ -185,6 +186,23 @@ def test_live_reconstruction_equals_replay(twin_session, tmp_path, capsys):
     for i in range(len(EXPECTED)):                              # and the per-frame CSVs byte for byte
         a = (twin_session / "live" / "frames" / f"{i:06d}.csv").read_bytes()
         assert a == (rec / "frames" / f"{i:06d}.csv").read_bytes()
+
+
+def test_live_directory_is_a_run_directory_scored_as_reconstruct_scores(twin_session, tmp_path):
+    """live/ is written by the run writer (journal, table, summary with run id) and scored over what both cameras see."""
+    live = twin_session / "live"
+    summary, backbones = read_run(live)
+    assert summary["complete"] and summary["run_id"] and sorted(backbones) == list(range(len(EXPECTED)))
+    header, records = read_journal(live / JOURNAL)
+    assert header["run_id"] == summary["run_id"] and header["method"] == "paper" and len(records) == len(EXPECTED)
+    assert (live / "frames.csv").exists()
+    rec = tmp_path / "rec"
+    assert cli(["reconstruct", str(twin_session), "--out", str(rec), "--quiet", "--no-report"]) == 0
+    offline, _ = read_run(rec)
+    keys = ("mean_error_mm", "max_error_mm", "tip_error_mm", "length_error_mm", "scored_fraction")
+    for a, b in zip(summary["per_frame"], offline["per_frame"]):
+        assert a["mean_error_mm"] is not None
+        assert {k: a[k] for k in keys} == {k: b[k] for k in keys}, a["frame"]   # the same figures, not just close
 
 
 def test_skew_measured_and_recorded(twin_session):

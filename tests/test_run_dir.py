@@ -34,8 +34,9 @@ import pytest
 
 from recon.errors import FrameError
 from recon.methods import METHODS, Method
-from rig import rundir
-from rig.bench.reconstruct import read_run, reconstruct_session
+from rig import rundir, scoring
+from rig.bench.reconstruct import reconstruct_session
+from rig.rundir import read_run
 from rig.session import Session, SessionWriter
 
 N_BACKGROUND = 8
@@ -154,6 +155,26 @@ def _strict_json(path: Path):
     if path.suffix == ".jsonl":
         return [json.loads(line, parse_constant=refuse) for line in text.splitlines()]
     return json.loads(text, parse_constant=refuse)
+
+
+# ----------------------------------------------------------------------------- the live view
+def test_the_live_view_reads_the_journal_and_the_backbone_its_record_lists(fast_run, session):
+    import io
+
+    from rig.live import LiveLogger
+
+    calls, msg = [], io.StringIO()
+    fake = SimpleNamespace(
+        init=lambda *a, **k: None, set_time=lambda name, **k: None, log=lambda path, obj: calls.append((path, obj)),
+        Image=lambda d: ("Image", d.shape), LineStrips2D=lambda s, colors: ("L2", len(s[0])),
+        LineStrips3D=lambda s, colors: ("L3", len(s[0])), Scalars=lambda v: ("S", v), TextLog=lambda t: ("T", t))
+    LiveLogger(rr=fake, stream=msg).watch(session, fast_run)("reconstruct", N_FRAMES, N_FRAMES)
+    assert msg.getvalue() == ""
+    summary, backbones = read_run(fast_run)
+    last = summary["per_frame"][-1]
+    logged = dict(calls)
+    assert logged["world/reconstruction"] == ("L3", len(backbones[last["frame"]]))
+    assert logged["errors/mean_error_mm"] == ("S", last["mean_error_mm"])
 
 
 # ----------------------------------------------------------------------------- refuse / overwrite
@@ -330,8 +351,8 @@ def test_nan_time_and_non_finite_results_give_nulls_and_failed_frames(session, r
     answers = {0: rendered.points, 1: np.full((5, 3), np.nan), 2: np.vstack([rendered.points, [[np.inf, 0, 0]]]),
                3: rendered.points}
     monkeypatch.setattr(rr, "Session", NanTimes)
-    monkeypatch.setattr(rr, "backbone_errors", lambda pts, truth, rig=None: {"mean_error_mm": float("inf"), "max_error_mm": float("nan"),
-                                                                             "tip_error_mm": 0.1, "length_error_mm": -float("inf")})
+    monkeypatch.setattr(scoring, "backbone_errors", lambda pts, truth, rig=None: {"mean_error_mm": float("inf"), "max_error_mm": float("nan"),
+                                                                                 "tip_error_mm": 0.1, "length_error_mm": -float("inf")})
     monkeypatch.setitem(METHODS, "nan", fake_method("nan", answers.__getitem__))
     summary = reconstruct_session(session, tmp_path / "out", "nan")
     recs = summary["per_frame"]
@@ -370,12 +391,10 @@ class _FullDisk:
 
 @pytest.mark.parametrize("target", ["frame csv", "journal"])
 def test_a_full_disk_is_one_line_naming_the_file_and_finished_frames_are_kept(target, session, tmp_path, monkeypatch, capsys):
-    import rig.bench.reconstruct as rr
-
     monkeypatch.setitem(METHODS, "line", fake_method("line", _line))
     out = tmp_path / "out"
     if target == "frame csv":
-        real, written = rr.write_backbone_csv, []
+        real, written = rundir.write_backbone_csv, []
 
         def write(path, pts):
             if len(written) == 2:
@@ -383,7 +402,7 @@ def test_a_full_disk_is_one_line_naming_the_file_and_finished_frames_are_kept(ta
             written.append(path)
             return real(path, pts)
 
-        monkeypatch.setattr(rr, "write_backbone_csv", write)
+        monkeypatch.setattr(rundir, "write_backbone_csv", write)
         failed = out / "frames" / "000002.csv"
     else:
         init = rundir.Journal.__init__

@@ -16,11 +16,13 @@ times in order (its state, e.g. the fast method's previous-frame prior, reset
 before each pass); a frame's time is its fastest pass, which discounts
 interruptions by other processes on a shared machine; the table gives the
 median and 95th percentile over frames. Errors are from the first pass
-(:func:`recon.metrics.backbone_errors` against the twin's ground truth):
+(:func:`rig.scoring.score_frame` against the twin's ground truth, over what both
+cameras see, as ``reconstruct`` scores):
 mean = mean over frames of the per-frame mean error, max = largest per-frame
 maximum, tip = median of the per-frame tip errors; a frame whose ground truth
-cannot be used is left out of them and listed under the table (``score_notes``
-in ``--json``, naming the truth file). Peak memory is the
+cannot be used, or a backbone nothing of which both cameras see, is left out of
+them and listed under the table (``score_notes`` in ``--json``, naming the truth
+file). Peak memory is the
 tracemalloc peak (Python and NumPy heap) of one more reconstruction of the
 first frame, made after the timed passes (numba's allocations are invisible to
 tracemalloc: for the fast method the arrays its compiled kernels allocate are not
@@ -46,11 +48,11 @@ import numpy as np
 from recon.carving import CarvingParams
 from recon.errors import FrameError
 from recon.methods import get_method, prepare
-from recon.metrics import backbone_errors
 from recon.paper import PaperParams
 from rig.bench.peers import peer_status, prepare_peer
 from rig.bench.reconstruct import load_background_frames
 from rig.bench.render_cache import cached_session
+from rig.scoring import score_frame
 from rig.session import Session, TruthError
 from rig.tables import cell
 
@@ -155,6 +157,7 @@ def run_method(name: str, data: dict, params=None, repeats: int = 3, budget_s: f
     n = len(data["frames"])
     best = np.full(n, np.inf)
     errors, failures, extras = [None] * n, [None] * n, {}
+    notes = list(data.get("truth_notes") or [None] * n)  # "not scored: ..." per frame, None when scored
     spent = 0.0
     passes = 0
     for p in range(max(1, repeats)):
@@ -179,18 +182,29 @@ def run_method(name: str, data: dict, params=None, repeats: int = 3, budget_s: f
             if p == 0:
                 truth = data["truths"][i]
                 if truth is not None:
-                    errors[i] = backbone_errors(result.points_world_mm, truth, data["rig"])
+                    errors[i], notes[i] = _score(i, result, truth, data["rig"])
                 if getattr(result, "jump_flag", False):
                     extras.setdefault("jump_flags", []).append(i)
     ok = np.isfinite(best)
     out = {"method": name, "frames": n, "failed_frames": int(n - ok.sum()), "passes": passes, "prepare_s": prepare_s,
            **_aggregates(best, errors), "failures": sorted({f for f in failures if f})[:5],
-           "score_notes": [note for note in data.get("truth_notes") or () if note]}
+           "score_notes": [note for note in notes if note]}
     out.update(extras)
     if memory and ok.any():
         out["peak_memory_mib"] = _peak_memory_mib(rec, data["frames"][int(np.flatnonzero(ok)[0])])
     out["model_memory_mib"] = model_mib
     return out
+
+
+def _score(index: int, result, truth, rig) -> tuple:
+    """``(errors, None)`` of frame ``index`` (mm, :func:`rig.scoring.score_frame`), or ``(None, "not scored: ...")``."""
+    try:
+        errs = score_frame(result, truth, rig)
+    except ValueError as exc:  # nothing of it seen by both cameras: the frame stays in the time figures
+        return None, f"not scored: frame {index}: {str(exc).splitlines()[0]}"
+    if any(v is None for v in errs.values()):  # the aggregates are over known figures only
+        return None, f"not scored: frame {index}: unknown (non-finite) errors: the backbone has non-finite points"
+    return errs, None
 
 
 def _peak_memory_mib(rec, frames: dict) -> float:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rig.bench.reconstruct import read_run
+from rig.rundir import read_run
 from rig.session import Session
 from twin.modelfit import Frame, ModelFitError, ModelState, load_robot_file, robot_from_dict
 from twin.robot import Joints

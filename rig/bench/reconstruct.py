@@ -6,7 +6,7 @@ interrupted run keeps what it finished:
 * ``frames/NNNNNN.csv``: the backbone of each frame, ``s_mm,x_mm,y_mm,z_mm,tx,ty,tz``, base first
   (:mod:`rig.backbone_csv`);
 * ``frames.jsonl``: the journal, one line per finished frame, appended and flushed
-  as it finishes (:mod:`rig.rundir`): what ``--resume`` continues from;
+  as it finishes: what ``--resume`` continues from;
 * ``frames.csv``: one row per frame (time, status, reason, figures);
 * ``backbones.npz``: all backbones (``frame_NNNNNN`` arrays) and the frame indices;
 * ``summary.json``: method, parameters, per-frame results and aggregates, the
@@ -14,8 +14,9 @@ interrupted run keeps what it finished:
 
 The output directory is the run's: one that holds an earlier run is refused
 unless ``existing="overwrite"`` (the earlier run's files are removed) or
-``"resume"`` (its finished frames are kept and skipped). :func:`read_run`
-reads a run back from what its summary lists, and no other file.
+``"resume"`` (its finished frames are kept and skipped). The files are
+written by :class:`rig.rundir.RunWriter`, and :func:`rig.rundir.read_run` reads
+a run back from what its summary lists, and no other file.
 
 Every reconstructed backbone is judged against its images by the
 method-independent self-check (:mod:`recon.selfcheck`, ``docs/selfcheck.md``):
@@ -33,46 +34,28 @@ import numpy as np
 
 from recon.errors import FrameError
 from recon.methods import get_method
-from recon.metrics import backbone_errors
 from recon.params import params_to_dict
 from recon.selfcheck import SelfCheckParams, check_backbone, prepare_selfcheck
-from rig.backbone_csv import FrameTable, read_backbone_csv, write_backbone_csv
 from rig.rundir import (
-    BACKBONES,
-    FRAMES_DIR,
-    JOURNAL,
-    SUMMARY,
-    TABLE,
-    Journal,
-    WriteError,
+    RunWriter,
     check_claim,
-    finite_or_none,
+    describe_result,
     journal_header,
-    json_safe,
-    json_text,
+    jump_record,
+    kept_frames,
     params_as_dict,
-    read_backbones_npz,
-    read_journal,
-    read_summary,
     remove_files,
-    summarize,
-    write_backbones_npz,
-    write_summary_json,
-    writing,
 )
+from rig.scoring import score_frame
 from rig.session import Session, SessionError
 from rig.tables import cell
 
 __all__ = ["reconstruct_session", "load_background_frames", "format_table",
-           "selfcheck_tube_radii_mm", "selfcheck_record", "read_run", "RunWriter"]
+           "selfcheck_tube_radii_mm", "selfcheck_record"]
 
 #: Per-frame statuses: reconstructed and passed the self-check, reconstructed but the
 #: self-check doubts it, not reconstructed.
 STATUSES = ("ok", "suspect", "failed")
-#: summary.json is rewritten at most this often while a run goes (the journal has every frame at once)...
-SUMMARY_EVERY_S = 5.0
-#: ...and at most once per this many times its own writing time: its size grows with the run, its share of the time does not.
-SUMMARY_COST_FACTOR = 20.0
 
 
 def load_background_frames(session: Session) -> dict:
@@ -164,29 +147,16 @@ def _prepare_check(session: Session, method: str, params, backgrounds: dict, sel
         raise SessionError(_background_error(session, exc)) from None
 
 
-def _describe(rec: dict, result, pts: np.ndarray) -> None:
-    """What a reconstructed frame's record says of its backbone (points, length, tip, stages' times, voxels)."""
-    rec.update(
-        n_points=int(len(pts)),
-        length_mm=finite_or_none(result.length_mm),
-        tip_world_mm=[float(v) for v in result.tip_world_mm],
-        transition_s_mm=finite_or_none(result.transition_s_mm),
-        timings_ms={k: round(float(v), 3) for k, v in result.timings_ms.items()},
-    )
-    voxel = getattr(result, "voxel_size_mm", None)
-    if voxel is not None:
-        rec["voxel_size_mm"] = [float(v) for v in np.broadcast_to(np.asarray(voxel, float), (3,))]
-
-
 def _score(rec: dict, session: Session, index: int, pts: np.ndarray) -> None:
-    """The frame's errors against the session's ground truth, if it has any; a bad truth file costs the score only."""
+    """The frame's errors (mm, :func:`rig.scoring.score_frame`) against the session's ground truth, if it has any.
+
+    A bad truth file (:class:`rig.session.TruthError` names it) or a frame nothing of
+    which every camera sees costs the score only: the record's ``note`` says why.
+    """
     try:
         truth = session.truth(index)
         if truth is not None:
-            if "backbone_world_mm" not in truth:
-                raise SessionError(f"{session.dir / 'truth' / f'{index:06d}.npz'}: no backbone_world_mm array")
-            errs = backbone_errors(pts, truth["backbone_world_mm"], session.rig)
-            rec.update({k: finite_or_none(v) for k, v in errs.items()})
+            rec.update(score_frame(pts, truth, session.rig))
     except Exception as exc:  # noqa: BLE001 - a bad truth file costs the score, not the frame
         rec["note"] = f"not scored: {_one_line(exc)}"
 
@@ -218,15 +188,13 @@ def _reconstruct_and_judge(rec: dict, session: Session, index: int, reconstruct,
     result = reconstruct(images)
     rec["ms"] = 1e3 * (time.perf_counter() - t0)
     pts = _backbone_points(result)
-    # The fast method's temporal check: recorded, the frame stays as the self-check judges it.
-    rec["jump_flag"] = bool(getattr(result, "jump_flag", False))
-    rec["jump_reason"] = getattr(result, "jump_reason", None) if rec["jump_flag"] else None
+    rec.update(jump_record(result))  # the fast method's temporal check: recorded, the status stays the self-check's
     if check_model is not None:
         selfcheck_record(rec, check_model, images, pts, radii_mm, selfcheck)
     own = getattr(result, "suspect_reason", None)
     if own and rec["status"] == "ok":  # the method's own doubt (recorded when the check passed)
         rec.update(status="suspect", reason=str(own))
-    _describe(rec, result, pts)
+    rec.update(describe_result(result, pts))
     _score(rec, session, index, pts)
     return pts
 
@@ -240,112 +208,6 @@ def _backbone_points(result) -> np.ndarray:
     if bad:
         raise FrameError(f"the reconstruction has {bad} non-finite backbone points of {len(pts)}")
     return pts
-
-
-class RunWriter:
-    """The files of one run as it goes (docs/outputs.md); the bookkeeping of :func:`reconstruct_session`.
-
-    Per finished frame: its backbone CSV, a journal line (flushed: the frame is
-    kept from then on, SIGKILL included) and a frames.csv row; summary.json
-    every :data:`SUMMARY_EVERY_S` at most (never more than 1/:data:`SUMMARY_COST_FACTOR`
-    of the time), so that the cost per frame does not grow with the run.
-    A write that fails raises :class:`rig.rundir.WriteError` naming the file.
-
-    Parameters
-    ----------
-    out : Path
-        The run directory (claimed: :func:`rig.rundir.check_claim`).
-    header : dict
-        The journal header (:func:`rig.rundir.journal_header`, with ``mm_per_px``).
-    kept : list of dict, optional
-        Records of the frames a resumed run keeps, and ``backbones`` their backbones.
-    """
-
-    def __init__(self, out, header: dict, kept=(), backbones=None):
-        self.out, self.header = Path(out), header
-        self.records, self.backbones = list(kept), dict(backbones or {})
-        self._lines = [json_text(r, indent=None) for r in self.records]  # each frame's JSON, encoded once
-        self.files = {"journal": JOURNAL, "table": TABLE, "backbones": None, "backbones_sha1": None}
-        with writing(self.out / FRAMES_DIR):
-            (self.out / FRAMES_DIR).mkdir(parents=True, exist_ok=True)
-        self._journal = Journal(self.out / JOURNAL, header, self.records)
-        with writing(self.out / TABLE):
-            self._table = FrameTable(self.out / TABLE, self.records)
-        self._next_summary = 0.0
-        self.write_summary()  # the directory names its run from the start
-
-    def add(self, rec: dict, pts: np.ndarray | None) -> None:
-        """Write a finished frame: its backbone (None: failed), journal line, table row; the summary when due."""
-        name = f"{FRAMES_DIR}/{rec['frame']:06d}.csv"
-        with writing(self.out / name):
-            if pts is not None:
-                rec.update(backbone_csv=name, backbone_sha1=write_backbone_csv(self.out / name, pts))
-                self.backbones[rec["frame"]] = pts
-            else:  # an earlier try of this frame, cut by a kill before its journal line, may have left one
-                (self.out / name).unlink(missing_ok=True)
-        self._lines.append(self._journal.add(rec))
-        with writing(self._table.path):
-            self._table.add(rec)
-        self.records.append(rec)
-        if time.monotonic() >= self._next_summary:
-            self.write_summary()
-
-    def summary(self, complete: bool = False) -> dict:
-        """The summary of the frames written so far."""
-        h = self.header
-        return summarize(self.records, h["method"], h["params"], h["session"], h["mm_per_px"], h["selfcheck"],
-                         run_id=h["run_id"], complete=complete, files=self.files, session_notes=h.get("session_notes", ()))
-
-    def write_summary(self, complete: bool = False) -> dict:
-        """Write summary.json now; the next one while the run goes is due after a pause proportional to its cost."""
-        t0 = time.monotonic()
-        summary = self.summary(complete)
-        write_summary_json(self.out / SUMMARY, {k: v for k, v in summary.items() if k != "per_frame"}, self._lines)
-        cost = time.monotonic() - t0
-        self._next_summary = time.monotonic() + max(SUMMARY_EVERY_S, SUMMARY_COST_FACTOR * cost)
-        return summary
-
-    def finish(self) -> dict:
-        """Write backbones.npz and the complete summary; close. Returns the summary (unknown values as None)."""
-        self._journal.sync()
-        sha1 = write_backbones_npz(self.out / BACKBONES, self.backbones)
-        self.files.update(backbones=BACKBONES, backbones_sha1=sha1)  # listed once it is all there
-        summary = self.write_summary(complete=True)
-        self.close()
-        return json_safe(summary)
-
-    def abort(self, exc: BaseException) -> None:
-        """After an error or an interrupt: keep what is finished (journal synced, summary of it), best effort."""
-        if isinstance(exc, WriteError):
-            exc.note = f"the {len(self.records)} frames finished are kept in {self.out / JOURNAL} (--resume continues)"
-        try:
-            self.write_summary()
-        except OSError:
-            pass  # the disk that refused a frame may refuse the summary too; the journal has the frames
-        try:
-            self.close()
-        except OSError:
-            pass
-
-    def close(self) -> None:
-        self._journal.close()
-        self._table.close()
-
-
-def _kept_frames(out: Path, records: list) -> tuple:
-    """The records and backbones a resumed run keeps: every finished frame whose backbone file is as written.
-
-    A reconstructed frame whose CSV is missing or changed is done again.
-    """
-    kept, backbones = [], {}
-    for rec in {r["frame"]: r for r in records}.values():
-        if rec.get("backbone_csv"):
-            try:
-                backbones[rec["frame"]] = read_backbone_csv(out / rec["backbone_csv"], sha1=rec.get("backbone_sha1"))
-            except (OSError, ValueError):
-                continue
-        kept.append(rec)
-    return kept, backbones
 
 
 def _prepare_method(session: Session, m, backgrounds: dict, params):
@@ -417,7 +279,7 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
     header["mm_per_px"] = mm_per_pixel(session)
     header["session_notes"] = list(session.notes)
     remove_files(out, stale)
-    kept, backbones = ([], {}) if earlier is None else _kept_frames(out, earlier[1])
+    kept, backbones = ([], {}) if earlier is None else kept_frames(out, earlier[1])
     now = {k: header[k] for k in ("mm_per_px", "session_notes")}
     writer = RunWriter(out, header if earlier is None else {**earlier[0], **now}, kept, backbones)
     done = {r["frame"] for r in kept}
@@ -432,80 +294,6 @@ def reconstruct_session(session_dir, out_dir, method: str = "paper", params=None
         writer.abort(exc)
         raise
     return writer.finish()
-
-
-def read_run(out_dir) -> tuple:
-    """A run directory's summary and backbones, read only from the files its summary lists.
-
-    A summary that is not ``complete`` (the run was killed or is still going:
-    summary.json is rewritten every few seconds) is rebuilt from the journal.
-    Backbones come from the ``backbones.npz`` the summary lists, else the
-    per-frame CSVs its records list; a file of another run (another SHA-1
-    than the summary records) is an error naming it. A summary without ``run_id`` (older
-    ctr-bench, or the live summary of ``ctr-bench experiment``) lists frames
-    only: the backbones of its reconstructed frames are read, and no others.
-
-    Returns
-    -------
-    (summary, backbones) : (dict, dict frame -> (n, 3) world mm)
-
-    Raises
-    ------
-    FileNotFoundError, ValueError
-        One line naming the file.
-    """
-    out = Path(out_dir)
-    summary = read_summary(out / SUMMARY)
-    if summary.get("run_id") is None:
-        return summary, _unlisted_backbones(out, summary)
-    if not summary.get("complete"):
-        summary = _rebuilt_summary(out, summary)
-    return summary, _listed_backbones(out, summary)
-
-
-def _rebuilt_summary(out: Path, summary: dict) -> dict:
-    """The summary of a run cut short, rebuilt from its journal (which has every finished frame)."""
-    path = out / ((summary.get("files") or {}).get("journal") or JOURNAL)
-    if not path.exists():
-        return summary
-    header, records = read_journal(path)
-    if header.get("run_id") != summary["run_id"]:
-        raise ValueError(f"{path}: written by run {header.get('run_id')}, not by run {summary['run_id']} that "
-                         f"{out / SUMMARY} describes (a stale file of another run)")
-    records = list({r["frame"]: r for r in records}.values())
-    return json_safe(summarize(records, header.get("method"), header.get("params"), header.get("session"),
-                               header.get("mm_per_px"), header.get("selfcheck"), run_id=header["run_id"],
-                               session_notes=header.get("session_notes", ())))
-
-
-def _listed_backbones(out: Path, summary: dict) -> dict:
-    """Backbones from the files a summary with a run id lists: its backbones.npz, else its per-frame CSVs."""
-    files = summary.get("files") or {}
-    if files.get("backbones"):
-        return read_backbones_npz(out / files["backbones"], sha1=files.get("backbones_sha1"))
-    found = {}
-    for rec in summary.get("per_frame", []):
-        if rec.get("backbone_csv"):
-            path = out / rec["backbone_csv"]
-            if not path.is_file():
-                raise ValueError(f"{path}: missing ({out / SUMMARY} lists it for frame {rec['frame']})")
-            found[int(rec["frame"])] = read_backbone_csv(path, sha1=rec.get("backbone_sha1"))
-    return found
-
-
-def _unlisted_backbones(out: Path, summary: dict) -> dict:
-    """Backbones of the frames a summary without run id says were reconstructed (backbones.npz, else their CSVs)."""
-    wanted = {int(r["frame"]) for r in summary.get("per_frame", []) if r.get("status") in ("ok", "suspect")}
-    if (out / BACKBONES).exists():
-        return read_backbones_npz(out / BACKBONES, frames=wanted)
-    found = {}
-    for i in sorted(wanted):
-        path = out / FRAMES_DIR / f"{i:06d}.csv"
-        try:
-            found[i] = read_backbone_csv(path)
-        except (OSError, ValueError):
-            continue  # a run cut short may not have written it; the frame is drawn without a backbone
-    return found
 
 
 def format_table(summary: dict) -> str:

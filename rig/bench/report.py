@@ -38,7 +38,7 @@ from PIL import Image, ImageDraw, ImageFont
 from recon.geometry import arc_length, closest_arc_length
 from recon.tubemesh import radii_along, tube_mesh
 from rig.bench.meshes import recon_tube, truth_tube, write_frame_meshes
-from rig.bench.reconstruct import read_run
+from rig.rundir import read_run
 from rig.session import read_image
 from rig.session_checks import TruthError, check_truth
 
@@ -669,7 +669,7 @@ class RunData:
 
 
 def load_run(out_dir) -> RunData:
-    """Read a run directory: what its summary lists (:func:`rig.bench.reconstruct.read_run`), and the session.
+    """Read a run directory: what its summary lists (:func:`rig.rundir.read_run`), and the session.
 
     Raises ``FileNotFoundError``/``ValueError`` with one line naming the file when the
     directory holds no run, or a file the summary lists is missing or another run's.

@@ -8,7 +8,9 @@ evolution, with integer knobs) searches the method's knobs for the lowest
 objective:
 
 * the mean, over every frame of every scene, of the frame's mean backbone
-  error (mm), a failed frame counting as ``failure_penalty_mm``;
+  error (mm; :func:`rig.scoring.score_frame`, over what both cameras see, as
+  ``reconstruct`` and ``bench`` score), a failed frame counting as
+  ``failure_penalty_mm``;
 * plus a time tie-break: ``tie_mm * ms / ms_default``, where ``ms`` is the
   median time per frame pair and ``ms_default`` that of the default
   parameters. Twice the default's time costs as much as ``tie_mm`` (0.002 mm
@@ -35,10 +37,10 @@ from scipy.optimize import differential_evolution
 
 from recon.errors import FrameError
 from recon.methods import get_method
-from recon.metrics import backbone_errors
 from recon.params import params_to_dict
 from rig.bench.reconstruct import load_background_frames, mm_per_pixel
 from rig.bench.render_cache import cached_session
+from rig.scoring import score_frame
 from rig.session import Session
 from twin.scene import load_scene
 
@@ -248,13 +250,31 @@ def _figures(records, penalty_mm: float) -> dict:
     }
 
 
+#: The errors (mm) the evaluation aggregates: a frame lacking one is a failure.
+_FIGURES = ("mean_error_mm", "max_error_mm", "tip_error_mm")
+
+
+def _frame_errors(result, truth, rig) -> dict | None:
+    """A frame's errors (mm, :func:`rig.scoring.score_frame`); None (a failure) when it cannot be scored.
+
+    A backbone nothing of which every camera sees, or one with unknown (non-finite)
+    errors, is no shape the tuner may prefer: it costs the failure penalty.
+    """
+    try:
+        errs = score_frame(result, truth, rig)
+    except ValueError:
+        return None
+    return errs if all(errs[k] is not None for k in _FIGURES) else None
+
+
 def evaluate(method: str, params, sessions, failure_penalty_mm: float = 5.0) -> Evaluation:
     """Reconstruct every frame of ``sessions`` with ``params`` and score it.
 
     Each session is prepared afresh (methods keep state between frames) with
     its robot's tube radii; frames run in order. A frame that raises
-    :class:`FrameError`, or a session whose preparation fails, counts as
-    failed. Any other exception is a bug and propagates.
+    :class:`FrameError`, one that cannot be scored (:func:`_frame_errors`), or a
+    session whose preparation fails, counts as failed. Any other exception is a
+    bug and propagates.
     """
     m = get_method(method)
     all_records, ms, per_session = [], [], {}
@@ -276,7 +296,7 @@ def evaluate(method: str, params, sessions, failure_penalty_mm: float = 5.0) -> 
                 records.append(None)
                 continue
             ms.append(1e3 * (time.perf_counter() - t0))
-            records.append(backbone_errors(r.points_world_mm, truth))
+            records.append(_frame_errors(r, truth, s.rig))
         per_session[s.name] = _figures(records, failure_penalty_mm)
         all_records += records
     return Evaluation(**_figures(all_records, failure_penalty_mm), ms_median=float(np.median(ms)) if ms else float("nan"),

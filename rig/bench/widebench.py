@@ -5,7 +5,8 @@ distribution (:func:`twin.scenegen.generate_suite`: backdrops, rigs, robots,
 light, masks-only inputs), renders each once into a cache keyed by the scene's
 content, reconstructs every frame with every method through the same loop as
 ``ctr-bench reconstruct`` (:func:`rig.bench.reconstruct.reconstruct_session`, self-check
-included), and scores each frame against the twin's ground truth.
+included), and scores each frame against the twin's ground truth (the run's records:
+:func:`rig.scoring.score_frame`, over what every camera sees, as every command scores).
 
 Errors are given in mm and in *pixel footprints*: a frame's footprint is the
 mean, over both cameras and the true backbone's points, of the size of one pixel

@@ -12,14 +12,15 @@ exists (a frame is committed by its ``frames.csv`` row), so a run that is
 interrupted -- Ctrl-C, SIGTERM, even SIGKILL -- leaves every frame before that
 readable and reconstructable.  With a reconstruction method the runner prepares
 it from the recorded background frames and reconstructs every pair live,
-writing ``SESSION/live/`` in the layout of ``ctr-bench reconstruct --out``
-(docs/outputs.md), so the two can be compared file for file.
+writing ``SESSION/live/`` through the writer of ``ctr-bench reconstruct --out``
+(:class:`rig.rundir.RunWriter`: journal, frame CSVs, table, summary, backbones.npz;
+docs/outputs.md), so the two can be compared file for file, and scoring each frame
+on the twin as ``reconstruct`` does (:func:`rig.scoring.score_frame`).
 """
 from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -29,10 +30,9 @@ import numpy as np
 
 from recon.errors import FrameError
 from recon.methods import get_method
-from recon.metrics import backbone_errors
-from rig.backbone_csv import write_backbone_csv
 from rig.hw.actuator import JOINTS, JointValues, SoftLimits
-from rig.rundir import finite_or_none, summarize, write_json_atomic
+from rig.rundir import RunWriter, describe_result, journal_header, jump_record, params_as_dict
+from rig.scoring import score_frame
 from rig.session import SessionWriter
 from twin.schema import NONNEGATIVE, POSITIVE, REQUIRED, SceneError, Table, read_toml
 
@@ -41,6 +41,8 @@ __all__ = ["SequenceError", "ExperimentError", "Step", "Sequence", "load_sequenc
 
 FORMAT = "ctr-bench-sequence"
 STEP_KINDS = ("home", "background", "move", "dwell", "grab", "repeat")
+#: The session's subdirectory the live reconstruction goes to, a run directory (rig.rundir).
+LIVE_DIR = "live"
 
 
 class SequenceError(ValueError):
@@ -334,18 +336,21 @@ class ExperimentRunner:
         self.extra_meta = extra_meta or {}
         self.result = ExperimentResult()
         self._reconstruct = None
-        self._records: list = []
-        self._backbones: dict = {}
+        self._live_run = None  # RunWriter of live/, opened when the method is first prepared
         self._bg: dict = {}
         self._events = None
         self._writer = None
         self._last_commit = None
-        self._mm_px = None
         self._joints_unobserved = None
         if method is not None:
             self._m = get_method(method)
             self.params = params if params is not None else self._m.params_type()
             check_background_first(self.seq)
+
+    @property
+    def live_records(self) -> list:
+        """The records of the frames reconstructed live so far (``live/frames.jsonl``'s), [] without a method."""
+        return [] if self._live_run is None else self._live_run.records
 
     # -- logging -----------------------------------------------------------------
     def _event(self, kind: str, **data) -> None:
@@ -371,8 +376,6 @@ class ExperimentRunner:
         self._writer = SessionWriter(self.out, self.rig.calibration, source=self.rig.source,
                                      n_tubes=self.rig.n_tubes, meta=meta)
         self._events = open(self.out / "experiment.jsonl", "a")
-        if self.method:
-            (self.out / "live" / "frames").mkdir(parents=True, exist_ok=True)
         self._event("start", sequence=self.seq.source, rig=self.rig.spec.source,
                     grabs=self.seq.grab_count, background=self.seq.background_count)
         try:
@@ -393,8 +396,8 @@ class ExperimentRunner:
 
     def _finish(self) -> None:
         try:
-            if self.method:
-                self._write_live(final=True)
+            if self._live_run is not None:  # after Ctrl-C too: every committed frame was reconstructed
+                self._live_run.finish()
         finally:
             self._event("end", **self.result.stats())
             if self._events is not None:
@@ -486,8 +489,8 @@ class ExperimentRunner:
         except (FrameError, ValueError) as exc:
             raise ExperimentError(f"cannot prepare method {self.method!r} from the {self.result.background_frames} "
                                   f"background frames: {exc}") from None
-        rig = self.rig.calibration
-        self._mm_px = float(np.mean([rig[c].mm_per_pixel_at(rig.base_point_world_mm) for c in rig.names]))
+        if self._live_run is None:  # a later background step prepares again, into the same run
+            self._live_run = self._open_live()
         ms = (time.monotonic() - t) * 1e3
         self.log(f"method {self.method} prepared from {self.result.background_frames} background pairs ({ms:.0f} ms)")
         self._event("prepared", method=self.method, ms=round(ms, 1))
@@ -534,9 +537,17 @@ class ExperimentRunner:
         if self.on_frame is not None:
             self.on_frame(index, pair, joints, result)
 
+    def _open_live(self) -> RunWriter:
+        """``live/``: a run directory (docs/outputs.md) of the session's frames, written as they are reconstructed."""
+        rig = self.rig.calibration
+        header = journal_header(self.method, params_as_dict(self.params), None, self.out)
+        header["mm_per_px"] = float(np.mean([rig[c].mm_per_pixel_at(rig.base_point_world_mm) for c in rig.names]))
+        return RunWriter(self.out / LIVE_DIR, header)
+
     def _live(self, index: int, t_s: float, pair, log: FrameLog):
+        """Reconstruct the pair just committed, score it on the twin, and write it into ``live/``; its result or None."""
         rec = {"frame": index, "t_s": t_s, "status": "ok", "reason": None}
-        result = None
+        result = pts = None
         try:
             t = time.perf_counter()
             result = self._reconstruct(pair.images)
@@ -545,37 +556,24 @@ class ExperimentRunner:
             rec.update(status="failed", reason=str(exc).splitlines()[0])
         if result is not None:
             pts = np.asarray(result.points_world_mm, float)
-            self._backbones[index] = pts
-            write_backbone_csv(self.out / "live" / "frames" / f"{index:06d}.csv", pts)
-            rec.update(n_points=int(len(pts)), length_mm=finite_or_none(result.length_mm),
-                       tip_world_mm=[float(v) for v in result.tip_world_mm],
-                       transition_s_mm=finite_or_none(result.transition_s_mm),
-                       timings_ms={k: round(float(v), 3) for k, v in result.timings_ms.items()})
-            # The fast method's temporal check, as reconstruct_session records it (docs/outputs.md).
-            rec["jump_flag"] = bool(getattr(result, "jump_flag", False))
-            rec["jump_reason"] = getattr(result, "jump_reason", None) if rec["jump_flag"] else None
+            rec.update(jump_record(result))  # the fast method's temporal check, as reconstruct_session records it
+            rec.update(describe_result(result, pts))
             if pair.truth is not None:
-                errs = backbone_errors(pts, pair.truth["backbone_world_mm"])
-                rec.update({k: finite_or_none(v) for k, v in errs.items()})
+                self._score(rec, pts, pair.truth)
             log.recon_ms = rec["ms"]
         log.record = rec
-        self._records.append(rec)
-        self._write_live(final=False)
+        self._live_run.add(rec, pts)
         return result
 
-    def _write_live(self, final: bool) -> None:
-        live = self.out / "live"
-        if not live.exists():
-            return
-        summary = summarize(self._records, self.method, self.params, self.out, self._mm_px or float("nan"))
-        summary["mm_per_px"] = finite_or_none(summary["mm_per_px"])
-        summary["live"] = True
-        write_json_atomic(live / "summary.json", summary)
-        if final:
-            tmp = live / ".backbones.npz.tmp.npz"
-            np.savez_compressed(tmp, frames=np.array(sorted(self._backbones), dtype=np.int64),
-                                **{f"frame_{i:06d}": p for i, p in self._backbones.items()})
-            os.replace(tmp, live / "backbones.npz")
+    def _score(self, rec: dict, pts: np.ndarray, truth: dict) -> None:
+        """The frame's errors (mm) against the twin's truth, over what every camera sees, as ``reconstruct`` scores.
+
+        A frame that cannot be scored (nothing of it in every view) keeps its record with a ``note``.
+        """
+        try:
+            rec.update(score_frame(pts, truth, self.rig.calibration))
+        except ValueError as exc:
+            rec["note"] = f"not scored: {str(exc).splitlines()[0]}"
 
     def _line(self, f: FrameLog) -> str:
         j = f.joints

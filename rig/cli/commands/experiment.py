@@ -139,8 +139,8 @@ def _report(runner, out: Path) -> None:
     print(f"camera skew: {fmt('skew_ms', p=3)}; settle wait: {fmt('settle_ms')}; grab: {fmt('grab_ms')}; "
           f"write: {fmt('write_ms')}; frame cycle: {fmt('cycle_ms')}")
     if runner.method:
-        ok = sum(1 for r in runner._records if r["status"] == "ok")
-        print(f"live {runner.method}: {ok}/{len(runner._records)} frames reconstructed, {fmt('recon_ms')}; "
+        ok = sum(1 for r in runner.live_records if r["status"] == "ok")
+        print(f"live {runner.method}: {ok}/{len(runner.live_records)} frames reconstructed, {fmt('recon_ms')}; "
               f"outputs in {out / 'live'}")
 
 
