@@ -15,6 +15,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from recon.params import dumps_toml, params_to_dict
+from rig.bench.render_cache import DEFAULT_CACHE_DIR
 from rig.bench.tune import KNOBS, evaluate, load_tune_sessions, tune, tuned_dict
 from rig.bench.tuneplot import plot_sensitivity
 from rig.cli.options import method_name, method_params, one_core
@@ -252,7 +253,8 @@ def register(sub) -> None:
                    "listed in docs/tuning.md)")
     p.add_argument("--holdout", nargs="+", default=None, metavar="SCENE",
                    help="also score default and tuned parameters on these scenes (never searched on), e.g. scenes/holdout")
-    p.add_argument("--cache", default=".ctr-bench-cache/tune", help="where rendered scenes are kept (default %(default)s)")
+    p.add_argument("--cache", default=str(DEFAULT_CACHE_DIR),
+                   help="where rendered scenes are kept, shared with run and bench (default %(default)s)")
     p.add_argument("--maxiter", type=int, default=12, help="differential evolution generations (default %(default)s)")
     p.add_argument("--popsize", type=int, default=4, help="population per knob (default %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="search seed (default %(default)s)")
