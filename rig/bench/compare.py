@@ -63,14 +63,18 @@ PEERS = ("icp-epipolar",)
 
 
 # ----------------------------------------------------------------------------- one core
-def pin_one_core() -> int:
-    """Pin this process to one CPU and keep OpenCV/BLAS single-threaded; returns the CPU."""
+def pin_one_core(index: int | None = None) -> int:
+    """Pin this process to one CPU and keep OpenCV/BLAS single-threaded; returns the CPU.
+
+    ``index``: which of the CPUs this process may use (modulo their count; a sweep's
+    worker k takes the k-th); default the last.
+    """
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
     cpu = -1
     if hasattr(os, "sched_setaffinity"):
         cpus = sorted(os.sched_getaffinity(0))
-        cpu = cpus[-1]
+        cpu = cpus[-1] if index is None else cpus[index % len(cpus)]
         os.sched_setaffinity(0, {cpu})
 
     cv2.setNumThreads(1)

@@ -25,9 +25,14 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from distributed import Client, LocalCluster, as_completed
+from distributed import Client, LocalCluster, as_completed, get_worker
 
-__all__ = ["SweepError", "Task", "Journal", "dask_client", "run_sweep", "code_digest", "task_digest"]
+from rig.rundir import json_safe
+
+__all__ = ["SweepError", "Task", "Journal", "dask_client", "run_sweep", "code_digest", "task_digest", "worker_index"]
+
+#: Worker processes keep every numerical library on one thread: a task's time is one core's.
+_ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
 
 
 class SweepError(ValueError):
@@ -76,7 +81,7 @@ def code_digest(*packages: str) -> str:
 
 
 def task_digest(*parts) -> str:
-    """Hash of a task's inputs: ``parts`` as JSON (paths as strings), plus the code of recon/ and twin/.
+    """Hash of a task's inputs: ``parts`` as JSON (paths as strings), plus the code of recon/, twin/ and rig/.
 
     Parameters
     ----------
@@ -89,7 +94,7 @@ def task_digest(*parts) -> str:
         16 hex digits.
     """
     h = hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode())
-    h.update(code_digest("recon", "twin").encode())
+    h.update(code_digest("recon", "twin", "rig").encode())
     return h.hexdigest()[:16]
 
 
@@ -133,6 +138,7 @@ class Journal:
 
     def append(self, task: Task, result) -> None:
         """Record ``result`` of ``task``: one line, flushed to disk before this returns."""
+        result = json_safe(result)
         line = json.dumps({"key": task.key, "digest": task.digest, "result": result}, default=str)
         with self.path.open("a", encoding="utf-8") as fh:
             fh.write(line + "\n")
@@ -175,8 +181,21 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None, memo
         return
     n = n_workers or os.cpu_count() or 1
     with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, memory_limit=memory_per_worker,
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+                      dashboard_address=None, env=_ONE_THREAD) as cluster, Client(cluster) as client:
         yield client
+
+
+def worker_index() -> int | None:
+    """In a task: the LocalCluster worker's number (0, 1, ...), to pin it to a core of its own; else None.
+
+    Workers started by hand (``dask worker``) are named by their address: the operating
+    system places them.
+    """
+    try:
+        name = get_worker().name
+    except ValueError:  # not inside a worker (the task run in this process)
+        return None
+    return name if isinstance(name, int) else None
 
 
 def run_sweep(client, tasks: list, journal: Journal, progress=None, stage: str = "sweep", retries: int = 2) -> list:
@@ -200,8 +219,8 @@ def run_sweep(client, tasks: list, journal: Journal, progress=None, stage: str =
     -------
     list
         Each task's result, in the order of ``tasks``. A task that still raised after its
-        retries has ``{"error": "<Type>: <message>"}``, journalled like any result (so a re-run
-        does not retry it unless its digest changes).
+        retries has ``{"error": "<Type>: <message>"}``, which is not journalled: a re-run
+        tries it again.
     """
     keys = [t.key for t in tasks]
     if len(set(keys)) != len(keys):
@@ -211,15 +230,15 @@ def run_sweep(client, tasks: list, journal: Journal, progress=None, stage: str =
     if progress:
         progress(stage, done, len(tasks))
     futures = {client.submit(t.fn, *t.args, key=f"{t.key}-{t.digest}", pure=False, retries=retries): t for t in todo}
+    errors = {}
     for future in as_completed(futures):
         task = futures.pop(future)
         try:
-            result = future.result()
-        except Exception as exc:  # the task's own failure, after its retries: journalled, not lost
-            result = {"error": f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"}
-        journal.append(task, result)
+            journal.append(task, future.result())
+        except Exception as exc:  # the task's own failure, after its retries: reported, and retried by a re-run
+            errors[task.key] = {"error": f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"}
         future.release()
         done += 1
         if progress:
             progress(stage, done, len(tasks))
-    return [journal.get(t) for t in tasks]
+    return [errors[t.key] if t.key in errors else journal.get(t) for t in tasks]

@@ -21,8 +21,10 @@ at that point's depth (mm). A frame is
   footprints (``good_flagged`` counts those the self-check flagged anyway).
 
 Error statistics are over the reconstructed frames (ok and flagged), whatever
-their status. Every frame's row goes to ``frames.csv`` in the output directory
-as it is scored, and the aggregates to ``summary.json``. A frame whose ground
+their status. Each scene is one task of a Dask sweep (:mod:`rig.bench.sweep`): its
+frames' rows go to the sweep's journal (``sweep.jsonl``) as the scene finishes, so
+an interrupted bench resumes; at the end every row goes to ``frames.csv`` and the
+aggregates to ``summary.json``. A frame whose ground
 truth cannot be used (its truth file missing, unreadable, of the wrong shape or
 not finite) keeps its row, unscored, with a ``note`` that names the file; the
 other frames are scored as usual.
@@ -41,10 +43,11 @@ import numpy as np
 from recon.methods import METHODS, Method, get_method, register_method
 from recon.metrics import seen_by_all
 from recon.selfcheck import SelfCheckParams
-from rig.bench.compare import PEERS, method_status
+from rig.bench.compare import PEERS, method_status, pin_one_core
 from rig.bench.peers import prepare_peer
 from rig.bench.reconstruct import reconstruct_session
 from rig.bench.render_cache import cached_session
+from rig.bench.sweep import Journal, SweepError, Task, dask_client, run_sweep, task_digest, worker_index
 from rig.progress import Progress
 from rig.rundir import write_json_atomic
 from rig.session import Session, TruthError
@@ -52,7 +55,7 @@ from rig.tables import cell
 from twin.scene import load_scene
 
 __all__ = ["SILENT_WRONG_PX", "CLASS_KEYS", "thinnest_tube_px", "tube_px_class", "write_suite", "frame_footprint_mm", "score_run", "aggregate",
-           "run_suite", "format_suite", "JSON_KEYS"]
+           "run_suite", "scene_rows", "format_suite", "JSON_KEYS"]
 
 #: A frame reported ok whose max error exceeds this many pixel footprints is a silent wrong shape.
 SILENT_WRONG_PX = 10.0
@@ -233,9 +236,68 @@ def _register_peer(name: str) -> None:
     register_method(Method(name, PeerParams, lambda rig, bg, params: prepare_peer(name, rig, bg), f"peer {name}"))
 
 
+def scene_rows(path, classes: dict, methods: list, out_dir, cache_dir, selfcheck: bool) -> dict:
+    """One sweep task: render a scene (cached), reconstruct it with every method, score every frame.
+
+    Runs on a sweep worker (:mod:`rig.bench.sweep`), pinned to a core of its own on a
+    LocalCluster, so each frame's time is one core's, as the one-scene bench measures it.
+
+    Parameters
+    ----------
+    path : Path
+        The scene TOML (written by :func:`write_suite`).
+    classes : dict
+        Its generator classes; ``tube_px`` is added from the rendered images.
+    methods : list of str
+        Available methods and peers (``method_status`` checked by the caller).
+    out_dir, cache_dir : Path
+        The bench's output (``runs/<method>/<scene>/``) and the render cache.
+    selfcheck : bool
+        Apply the self-check.
+
+    Returns
+    -------
+    dict
+        ``{"rows": [row per frame per method], "wall_s": {method: seconds}}``.
+    """
+    pin_one_core(worker_index())
+    path, out_dir = Path(path), Path(out_dir)
+    session_dir = cached_session(load_scene(path), 1.0, Path(cache_dir) / "sessions")
+    classes = dict(classes, tube_px=tube_px_class(thinnest_tube_px(Session(session_dir))))
+    rows, wall = [], {}
+    for name in methods:
+        if name in PEERS:
+            _register_peer(name)
+        t0 = time.perf_counter()
+        try:
+            # The bench owns its runs/ tree: a second bench into the same --out replaces them.
+            summary = reconstruct_session(session_dir, out_dir / "runs" / name / path.stem, name,
+                                          params=_robot_params(name, session_dir),
+                                          selfcheck=SelfCheckParams() if selfcheck else None, existing="overwrite")
+        except ValueError as exc:  # set-up refused for the whole scene: every frame failed
+            summary = {"per_frame": [{"frame": f.index, "status": "failed", "reason": str(exc).splitlines()[0]}
+                                     for f in Session(session_dir).frames]}
+        rows += score_run(summary, Session(session_dir), path.stem, name, classes)
+        wall[name] = time.perf_counter() - t0
+    return {"rows": rows, "wall_s": wall}
+
+
+def _available(methods: list) -> tuple:
+    """``(runnable, skipped)``: the methods (and installed peers) to run, and ``{name: why}`` of the others."""
+    runnable, skipped = [], {}
+    for name in methods:
+        ok, why = method_status(name)
+        if ok:
+            runnable.append(name)
+        else:
+            skipped[name] = why
+    return runnable, skipped
+
+
 def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache_dir: Path, selfcheck=True,
-              quiet: bool = False, max_pixels: int | None = None) -> dict:
-    """Render (cached), reconstruct and score every scene of the suite with every method.
+              quiet: bool = False, max_pixels: int | None = None, scheduler: str | None = None,
+              workers: int | None = None) -> dict:
+    """Render (cached), reconstruct and score every scene of the suite with every method, a sweep task a scene.
 
     Parameters
     ----------
@@ -244,13 +306,18 @@ def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache
     methods : list of str
         Method names (``paper``, ``fast``) or peers (``icp-epipolar``); unavailable peers are skipped with the reason.
     out_dir : Path
-        ``frames.csv``, ``summary.json`` and per-run reconstruct outputs (``runs/<method>/<scene>/``).
+        ``frames.csv``, ``summary.json``, the sweep's journal ``sweep.jsonl`` (a re-run into the
+        same directory resumes from it) and per-run reconstruct outputs (``runs/<method>/<scene>/``).
     cache_dir : Path
         Scene TOMLs and rendered sessions, reused across runs.
     selfcheck : bool
         Apply the self-check (False measures the methods as they would be reported without it).
     max_pixels : int, optional
         Draw only sensors of at most this many pixels (a quick set; the other ranges unchanged).
+    scheduler : str, optional
+        ``tcp://host:port`` of a Dask scheduler; None: an in-process LocalCluster (:func:`rig.bench.sweep.dask_client`).
+    workers : int, optional
+        LocalCluster workers (default one a core).
 
     Returns
     -------
@@ -260,53 +327,38 @@ def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache
     out_dir.mkdir(parents=True, exist_ok=True)
     tag = f"-max{max_pixels}" if max_pixels else ""
     scenes = write_suite(suite, n, seed, cache_dir / f"{suite}-seed{seed}{tag}-scenes", max_pixels)
-    sessions = []
-    progress = Progress(enabled=not quiet)
-    for k, (path, classes) in enumerate(scenes):
-        session_dir = cached_session(load_scene(path), 1.0, cache_dir / "sessions")
-        classes = dict(classes, tube_px=tube_px_class(thinnest_tube_px(Session(session_dir))))
-        sessions.append((path.stem, session_dir, classes))
-        progress("render", k + 1, len(scenes))
-    available = {}
-    for name in methods:
-        ok, why = method_status(name)
-        if ok and name in PEERS:
-            _register_peer(name)
-        available[name] = (ok, why)
-    rows, results = [], {}
-    csv_path = out_dir / "frames.csv"
-    with csv_path.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=_CSV_FIELDS, extrasaction="ignore")
-        writer.writeheader()
-        for name in methods:
-            if not available[name][0]:
-                results[name] = {"skipped": available[name][1]}
-                continue
-            t0 = time.perf_counter()
-            for k, (scene, session_dir, classes) in enumerate(sessions):
-                run_dir = out_dir / "runs" / name / scene
-                try:
-                    # The bench owns its runs/ tree: a second bench into the same --out replaces them.
-                    summary = reconstruct_session(session_dir, run_dir, name, params=_robot_params(name, session_dir),
-                                                  selfcheck=SelfCheckParams() if selfcheck else None, existing="overwrite")
-                except ValueError as exc:  # set-up refused for the whole scene: every frame failed
-                    summary = {"per_frame": [{"frame": f.index, "status": "failed", "reason": str(exc).splitlines()[0]}
-                                             for f in Session(session_dir).frames]}
-                new = score_run(summary, Session(session_dir), scene, name, classes)
-                for row in new:
-                    writer.writerow(row)
-                fh.flush()
-                rows.extend(new)
-                progress(name, k + 1, len(sessions))
-            results[name] = aggregate([r for r in rows if r["method"] == name])
-            results[name]["wall_s"] = time.perf_counter() - t0
+    runnable, skipped = _available(methods)
+    tasks = [Task(path.stem, scene_rows, (str(path), classes, runnable, str(out_dir), str(cache_dir), bool(selfcheck)),
+                  task_digest("wide-scene", path.read_text(), classes, runnable, bool(selfcheck)))
+             for path, classes in scenes]
+    progress = Progress(enabled=not quiet, units={"scenes": "scene"})
+    with dask_client(scheduler, workers) as client:
+        done = run_sweep(client, tasks, Journal(out_dir / "sweep.jsonl"), progress, stage="scenes")
     progress.close()
+    failed = [(t.key, d["error"]) for t, d in zip(tasks, done) if "error" in d]
+    if failed:  # a bug or a broken worker, not a frame the method refused: nothing to score
+        raise SweepError(f"{out_dir / 'sweep.jsonl'}: {len(failed)} scene(s) failed ({failed[0][0]}: {failed[0][1]}); "
+                         "the others are journalled and a re-run retries these")
+    rows = [r for name in runnable for d in done for r in d["rows"] if r["method"] == name]
+    _write_rows(out_dir / "frames.csv", rows)
+    results = {name: {"skipped": why} for name, why in skipped.items()}
+    for name in runnable:
+        results[name] = aggregate([r for r in rows if r["method"] == name])
+        results[name]["wall_s"] = sum(d["wall_s"][name] for d in done)
+    results = {name: results[name] for name in methods}
     report = {"suite": suite, "n": n, "seed": seed, "max_pixels": max_pixels, "selfcheck": bool(selfcheck), "methods": results,
-              "classes": {m: _by_class([r for r in rows if r["method"] == m]) for m in results if "skipped" not in results[m]},
+              "classes": {m: _by_class([r for r in rows if r["method"] == m]) for m in runnable},
               "worst": _worst(rows)}
-
     write_json_atomic(out_dir / "summary.json", report)
     return report
+
+
+def _write_rows(path: Path, rows: list) -> None:
+    """``frames.csv``: a row per frame per method, methods in the order asked, scenes in suite order."""
+    with path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=_CSV_FIELDS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
 
 
 def _robot_params(method: str, session_dir):

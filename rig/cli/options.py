@@ -175,3 +175,12 @@ def megapixels_limit(megapixels) -> int | None:
         raise ValueError(f"--max-megapixels must be >= {smallest / 1e6:g} (the smallest sensor drawn, "
                          f"{IMAGE_SIZES[0][0]}x{IMAGE_SIZES[0][1]}), got {megapixels:g}")
     return int(megapixels * 1e6)
+
+
+def add_sweep_options(p, prefix: str = "") -> None:
+    """``--scheduler`` and ``--workers``: where a sweep's tasks run (:mod:`rig.bench.sweep`, docs/scale.md)."""
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help=f"{prefix}run the sweep on this Dask scheduler (tcp://host:port; its workers need ctr-bench and "
+                   "the cache and output folders); default: an in-process cluster on this machine")
+    p.add_argument("--workers", type=count(1), default=None, metavar="N",
+                   help=f"{prefix}workers of the in-process cluster (default: one a core)")

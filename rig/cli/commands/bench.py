@@ -11,7 +11,7 @@ from pathlib import Path
 from rig.bench import widebench
 from rig.bench.compare import METHODS, bench, format_ratios, format_scaling, format_table, pin_one_core, scaling
 from rig.bench.render_cache import DEFAULT_CACHE_DIR
-from rig.cli.options import add_scene_options, load_scene_from_args, megapixels_limit
+from rig.cli.options import add_scene_options, add_sweep_options, load_scene_from_args, megapixels_limit
 
 
 def method_list(text: str) -> list:
@@ -36,11 +36,12 @@ def _run_suite(args) -> int:
     if args.seed < 0:
         raise ValueError(f"--seed must be >= 0, got {args.seed}")
     max_pixels = megapixels_limit(args.max_megapixels)
-    pin_one_core()
     methods = args.methods or list(METHODS)
     out = Path(args.out) if args.out else Path("out") / f"bench-{args.suite}-n{args.n}-seed{args.seed}"
+    # No pin here: the sweep's workers pin themselves, one core each.
     report = widebench.run_suite(args.suite, args.n, args.seed, methods, out, Path(args.cache_dir),
-                                 selfcheck=not args.no_selfcheck, quiet=args.quiet, max_pixels=max_pixels)
+                                 selfcheck=not args.no_selfcheck, quiet=args.quiet, max_pixels=max_pixels,
+                                 scheduler=args.scheduler, workers=args.workers)
     if args.json:
         print(widebench.dump(report))
         return 0
@@ -114,4 +115,5 @@ def register(sub) -> None:
     p.add_argument("--max-megapixels", type=float, default=None,
                    help="--suite: draw only sensors up to this size (a quick set; other ranges unchanged)")
     p.add_argument("--no-selfcheck", action="store_true", help="--suite: report frames as the methods return them, unchecked")
+    add_sweep_options(p, "--suite: ")
     p.set_defaults(func=_run)
