@@ -12,7 +12,8 @@ from recon.paper import PaperParams
 from recon.params import load_params
 from rig.cli import main
 from rig.scenefiles import scene_path
-from rig.bench.tune import KNOBS, Evaluator, Knob, evaluate, knob_values, load_tune_sessions, tune, tuned_dict, with_knobs
+from rig.bench.tune import (KNOBS, Evaluator, Knob, evaluate, knob_values, load_tune_session, tune, tune_session_dirs, tuned_dict,
+                            with_knobs)
 
 ROOT = Path(__file__).resolve().parents[1]
 #: A tuning scene: dim, flickering light, noisy sensor; 4 frames, 10 background frames.
@@ -26,8 +27,13 @@ def cache(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def sessions(cache):
-    return load_tune_sessions([SCENE], cache, log=lambda *_: None)
+def session_dirs(cache):
+    return tune_session_dirs([SCENE], cache, log=lambda *_: None)
+
+
+@pytest.fixture(scope="module")
+def sessions(session_dirs):
+    return [load_tune_session(str(d)) for d in session_dirs]
 
 
 def test_every_knob_names_a_parameter_and_its_default_is_in_range():
@@ -66,20 +72,27 @@ def test_a_failed_frame_costs_the_penalty(sessions):
     assert ev.penalized_error_mm == 7.0 and np.isnan(ev.mean_error_mm)
 
 
-def test_parallel_evaluation_gives_the_serial_errors(sessions):
+def test_evaluation_on_dask_workers_gives_the_serial_errors_and_resumes_from_its_journal(sessions, session_dirs, tmp_path):
     params = [with_knobs(PaperParams(), (THRESHOLD,), [t]) for t in (0.15, 0.3)]
     serial = [evaluate("paper", p, sessions) for p in params]
-    with Evaluator("paper", sessions, jobs=2) as ev:
+    journal = tmp_path / "tune.jsonl"
+    with Evaluator("paper", session_dirs, journal=journal, workers=2) as ev:
         parallel = ev.many(params)
     for a, b in zip(serial, parallel):
-        assert a.mean_error_mm == b.mean_error_mm and a.failures == b.failures
+        assert a.mean_error_mm == b.mean_error_mm and a.failures == b.failures and a.per_session == b.per_session
+    lines = journal.read_text().splitlines()
+    assert len(lines) == len(params) * len(session_dirs)
+    with Evaluator("paper", session_dirs, journal=journal, workers=1) as ev:  # a re-run: nothing evaluated again
+        again = ev.many(params)
+    assert journal.read_text().splitlines() == lines
+    assert [a.penalized_error_mm for a in again] == [b.penalized_error_mm for b in parallel]
 
 
-def test_tuner_recovers_a_threshold_that_loses_the_robot(sessions):
+def test_tuner_recovers_a_threshold_that_loses_the_robot(session_dirs):
     """Starting from a threshold at which every frame fails (0.7 on this dim scene, without the hysteresis), the
     search must find one at which none fails and the error is within a voxel; the sensitivity sweep covers the range."""
     base = _without_hysteresis(0.7)
-    res = tune("paper", sessions, base, knobs=(THRESHOLD,), maxiter=3, popsize=5, seed=3, sensitivity_points=4)
+    res = tune("paper", session_dirs, base, knobs=(THRESHOLD,), maxiter=3, popsize=5, seed=3, sensitivity_points=4)
     assert res.default.failures == 4
     assert res.tuned.failures == 0
     assert res.tuned.mean_error_mm <= 1.0  # mm; the voxel edge here is ~1 mm
@@ -89,7 +102,7 @@ def test_tuner_recovers_a_threshold_that_loses_the_robot(sessions):
     assert tuned_dict(res) == {"method": "paper", "silhouette": {"threshold": res.tuned_params.silhouette.threshold}}
 
 
-def test_cli_writes_a_parameter_file_that_reconstruct_reads(cache, sessions, tmp_path, capsys):
+def test_cli_writes_a_parameter_file_that_reconstruct_reads(cache, session_dirs, tmp_path, capsys):
     out = tmp_path / "tuned.toml"
     rc = main(["tune", str(SCENE), "--method", "paper", "--knobs", "silhouette.threshold,background.k", "--maxiter", "1",
                "--popsize", "2", "--points", "3", "--cache", str(cache), "--out", str(out), "--quiet"])
@@ -103,7 +116,7 @@ def test_cli_writes_a_parameter_file_that_reconstruct_reads(cache, sessions, tmp
     assert "method = \"paper\"" in text and "[silhouette]" in text and "[background]" in text
     assert tuned.carving == PaperParams().carving  # not searched: default
     # The file is what reconstruct --params reads; the session's robot supplies the tube radii.
-    session = next(Path(cache).iterdir())
+    session = next(p for p in Path(cache).iterdir() if p.is_dir())
     rc = main(["reconstruct", str(session), "--params", str(out), "--out", str(tmp_path / "rec"), "--no-report", "--quiet"])
     assert rc == 0
     capsys.readouterr()

@@ -26,8 +26,10 @@ and how flat the optimum is.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-import multiprocessing
+import functools
+import tempfile
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -38,8 +40,10 @@ from scipy.optimize import differential_evolution
 from recon.errors import FrameError
 from recon.methods import get_method
 from recon.params import params_to_dict
+from rig.bench.compare import pin_one_core
 from rig.bench.reconstruct import load_background_frames, mm_per_pixel
 from rig.bench.render_cache import cached_session
+from rig.bench.sweep import Journal, Task, dask_client, run_sweep, task_digest, worker_index
 from rig.scoring import score_frame
 from rig.session import Session
 from twin.scene import load_scene
@@ -55,6 +59,9 @@ __all__ = [
     "tune",
     "sensitivity",
     "load_tune_sessions",
+    "tune_session_dirs",
+    "load_tune_session",
+    "session_records",
     "with_knobs",
     "knob_values",
 ]
@@ -178,30 +185,44 @@ class TuneSession:
     mm_per_px: float
 
 
-def load_tune_sessions(scene_paths, cache_dir, progress=None, log=print) -> list:
-    """Render (or reuse from ``cache_dir``) each scene and load it into memory.
+def tune_session_dirs(scene_paths, cache_dir, progress=None, log=print) -> list:
+    """Render (or reuse from ``cache_dir``) each scene; the rendered session directories, checked for tuning.
 
     A scene is rendered again only when its file's contents changed: the cache
-    directory's name holds a hash of them (:mod:`rig.bench.render_cache`).
+    directory's name holds a hash of them (:mod:`rig.bench.render_cache`). Nothing is
+    held in memory: a sweep's workers load the sessions they evaluate (:func:`load_tune_session`).
+
+    Raises
+    ------
+    ValueError
+        A session without the robot's two tube radii, or a frame without ground truth.
     """
     out = []
     for path in map(Path, scene_paths):
-        scene = load_scene(path)
-        target = cached_session(scene, 1.0, Path(cache_dir), quiet=progress is None, log=log)
+        target = cached_session(load_scene(path), 1.0, Path(cache_dir), quiet=progress is None, log=log)
         session = Session(target)
-        radii = session.robot_tube_radii_mm
-        if radii is None:
+        if session.robot_tube_radii_mm is None:
             raise ValueError(f"{target}/session.json: no robot with two tubes (tuning needs the tube radii)")
-        frames, truths = [], []
         for fr in session.frames:
-            truth = session.truth(fr.index)
-            if truth is None:
+            if session.truth(fr.index) is None:
                 raise ValueError(f"{target}: frame {fr.index} has no ground truth (tuning needs twin sessions)")
-            frames.append(session.frame_images(fr.index))
-            truths.append(truth["backbone_world_mm"])
-        out.append(TuneSession(scene.name, session.rig, load_background_frames(session), frames, truths, radii,
-                               mm_per_pixel(session)))
+        out.append(target)
     return out
+
+
+@functools.lru_cache(maxsize=4)
+def load_tune_session(session_dir) -> TuneSession:
+    """A rendered session in memory (a few at a time per process: a worker holds what it evaluates)."""
+    session = Session(Path(session_dir))
+    frames = [session.frame_images(fr.index) for fr in session.frames]
+    truths = [session.truth(fr.index)["backbone_world_mm"] for fr in session.frames]
+    return TuneSession(session.meta.get("scene_name") or Path(session_dir).name, session.rig,
+                       load_background_frames(session), frames, truths, session.robot_tube_radii_mm, mm_per_pixel(session))
+
+
+def load_tune_sessions(scene_paths, cache_dir, progress=None, log=print) -> list:
+    """Render (or reuse) each scene and load it into memory: :func:`tune_session_dirs`, then :func:`load_tune_session`."""
+    return [load_tune_session(str(d)) for d in tune_session_dirs(scene_paths, cache_dir, progress, log)]
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -267,40 +288,54 @@ def _frame_errors(result, truth, rig) -> dict | None:
     return errs if all(errs[k] is not None for k in _FIGURES) else None
 
 
-def evaluate(method: str, params, sessions, failure_penalty_mm: float = 5.0) -> Evaluation:
-    """Reconstruct every frame of ``sessions`` with ``params`` and score it.
+def session_records(method: str, params, s: TuneSession) -> tuple:
+    """``(records, ms)``: each frame's errors (None: failed) and each reconstructed frame's time (ms) on session ``s``.
 
-    Each session is prepared afresh (methods keep state between frames) with
-    its robot's tube radii; frames run in order. A frame that raises
-    :class:`FrameError`, one that cannot be scored (:func:`_frame_errors`), or a
-    session whose preparation fails, counts as failed. Any other exception is a
-    bug and propagates.
+    The session is prepared afresh (methods keep state between frames) with its robot's
+    tube radii; frames run in order. A frame that raises :class:`FrameError`, one that
+    cannot be scored (:func:`_frame_errors`), or a session whose preparation fails, counts
+    as failed. Any other exception is a bug and propagates.
     """
-    m = get_method(method)
-    all_records, ms, per_session = [], [], {}
-    for s in sessions:
-        p = replace(params, outer_tube_radius_mm=s.tube_radii_mm[0], inner_tube_radius_mm=s.tube_radii_mm[1])
-        records = []
+    p = replace(params, outer_tube_radius_mm=s.tube_radii_mm[0], inner_tube_radius_mm=s.tube_radii_mm[1])
+    try:
+        rec = get_method(method).prepare(s.rig, s.backgrounds, p)
+    except ValueError:  # e.g. k larger than the background frames allow
+        return [None] * len(s.frames), []
+    records, ms = [], []
+    for images, truth in zip(s.frames, s.truths):
+        t0 = time.perf_counter()
         try:
-            rec = m.prepare(s.rig, s.backgrounds, p)
-        except ValueError:
-            rec = None  # e.g. k larger than the background frames allow
-        for images, truth in zip(s.frames, s.truths):
-            if rec is None:
-                records.append(None)
-                continue
-            t0 = time.perf_counter()
-            try:
-                r = rec(images)
-            except FrameError:
-                records.append(None)
-                continue
-            ms.append(1e3 * (time.perf_counter() - t0))
-            records.append(_frame_errors(r, truth, s.rig))
-        per_session[s.name] = _figures(records, failure_penalty_mm)
-        all_records += records
-    return Evaluation(**_figures(all_records, failure_penalty_mm), ms_median=float(np.median(ms)) if ms else float("nan"),
-                      per_session=per_session)
+            r = rec(images)
+        except FrameError:
+            records.append(None)
+            continue
+        ms.append(1e3 * (time.perf_counter() - t0))
+        records.append(_frame_errors(r, truth, s.rig))
+    return records, ms
+
+
+def _evaluation(parts: list, penalty_mm: float) -> Evaluation:
+    """The :class:`Evaluation` of ``(session name, records, ms)`` parts."""
+    records = [r for _, recs, _ in parts for r in recs]
+    ms = [t for _, _, times in parts for t in times]
+    return Evaluation(**_figures(records, penalty_mm), ms_median=float(np.median(ms)) if ms else float("nan"),
+                      per_session={name: _figures(recs, penalty_mm) for name, recs, _ in parts})
+
+
+def evaluate(method: str, params, sessions, failure_penalty_mm: float = 5.0) -> Evaluation:
+    """Reconstruct every frame of ``sessions`` (in memory) with ``params`` and score it (:func:`session_records`)."""
+    return _evaluation([(s.name, *session_records(method, params, s)) for s in sessions], failure_penalty_mm)
+
+
+def evaluate_session_dir(method: str, params, session_dir: str) -> dict:
+    """A sweep task: :func:`session_records` of the session in ``session_dir``, loaded on the worker.
+
+    Returns ``{"name", "records", "ms"}``; the worker is pinned to a core of its own on a LocalCluster.
+    """
+    pin_one_core(worker_index())
+    s = load_tune_session(str(session_dir))
+    records, ms = session_records(method, params, s)
+    return {"name": s.name, "records": records, "ms": ms}
 
 
 def objective_value(ev: Evaluation, ms_default: float, tie_mm: float) -> float:
@@ -347,55 +382,80 @@ def _row(knobs, x, ev: Evaluation, objective: float, **extra) -> dict:
 
 
 class Evaluator:
-    """Evaluates parameter sets over the tuning sessions, ``jobs`` at a time.
+    """Evaluates parameter sets over the tuning sessions on a Dask sweep (:mod:`rig.bench.sweep`).
 
-    With ``jobs > 1`` the sets are spread over forked worker processes (the
-    sessions are inherited, not copied per task); times per pair are then
-    measured with the workers competing for the cores, which only the time
-    tie-break sees. Use as a context manager.
+    A task is one parameter set on one session (its directory: the worker loads it, a few
+    sessions at a time, so no process holds them all). Every finished task goes to the
+    journal: a re-run of the same search (same seed, scenes and code) finds its evaluations
+    there and resumes. With more than one worker, times per pair are measured with the
+    workers competing for the machine, which only the time tie-break sees. Use as a context
+    manager.
+
+    Parameters
+    ----------
+    method : str
+    session_dirs : list of path
+        Rendered sessions (:func:`tune_session_dirs`).
+    failure_penalty_mm : float
+    journal : path, optional
+        The sweep's JSONL journal (None: a temporary one, nothing resumes).
+    scheduler : str, optional
+        ``tcp://host:port`` of a Dask scheduler; None: an in-process LocalCluster.
+    workers : int, optional
+        LocalCluster workers (default one a core).
+    progress : callable, optional
+        ``progress(stage, done, total)`` of each batch of tasks.
     """
 
-    def __init__(self, method: str, sessions, failure_penalty_mm: float = 5.0, jobs: int = 1):
-        self.method, self.sessions, self.penalty, self.jobs = method, sessions, failure_penalty_mm, max(1, int(jobs))
-        self._pool = None
+    def __init__(self, method: str, session_dirs, failure_penalty_mm: float = 5.0, journal=None,
+                 scheduler: str | None = None, workers: int | None = None, progress=None):
+        self.method, self.dirs, self.penalty = method, [str(d) for d in session_dirs], failure_penalty_mm
+        self.scheduler, self.workers, self.progress = scheduler, workers, progress
+        self._journal_path, self._stack = journal, None
 
     def __enter__(self):
-        if self.jobs > 1:
-            global _WORKER_JOB
-            _WORKER_JOB = (self.method, self.sessions, self.penalty)
-            self._pool = multiprocessing.get_context("fork").Pool(self.jobs)
+        self._stack = contextlib.ExitStack()
+        if self._journal_path is None:
+            self._journal_path = Path(self._stack.enter_context(tempfile.TemporaryDirectory())) / "tune.jsonl"
+        self.journal = Journal(self._journal_path)
+        self.client = self._stack.enter_context(dask_client(self.scheduler, self.workers))
         return self
 
     def __exit__(self, *exc):
-        if self._pool is not None:
-            self._pool.terminate()
-            self._pool = None
+        self._stack.close()
 
     def many(self, params_list) -> list:
         """Evaluation of each parameter set, in order."""
-        if self._pool is None or len(params_list) < 2:
-            return [evaluate(self.method, p, self.sessions, self.penalty) for p in params_list]
-        return self._pool.map(_worker_evaluate, params_list, chunksize=1)
+        tasks = []
+        for params in params_list:
+            key = task_digest("tune-params", self.method, params_to_dict(params))
+            tasks += [Task(f"{key}-{i}", evaluate_session_dir, (self.method, params, d),
+                           task_digest("tune", self.method, params_to_dict(params), Path(d).name))
+                      for i, d in enumerate(self.dirs)]
+        done = run_sweep(self.client, tasks, self.journal, self.progress, stage="evaluate")
+        failed = [d["error"] for d in done if "error" in d]
+        if failed:  # a bug in a method, not a frame it refused: the search cannot go on without it
+            raise RuntimeError(f"tune: an evaluation failed on a worker: {failed[0]}")
+        n = len(self.dirs)
+        return [_evaluation([(d["name"], d["records"], d["ms"]) for d in done[k * n:(k + 1) * n]], self.penalty)
+                for k in range(len(params_list))]
+
+    def one(self, params) -> Evaluation:
+        """Evaluation of one parameter set."""
+        return self.many([params])[0]
 
 
-_WORKER_JOB = None
-
-
-def _worker_evaluate(params):
-    method, sessions, penalty = _WORKER_JOB
-    return evaluate(method, params, sessions, penalty)
-
-
-def tune(method: str, sessions, base_params=None, *, maxiter: int = 12, popsize: int = 4, seed: int = 0,
-         failure_penalty_mm: float = 5.0, tie_mm: float = 0.002, knobs=None, jobs: int = 1,
-         sensitivity_points: int = 0, progress=None, on_row=None) -> TuneResult:
+def tune(method: str, session_dirs, base_params=None, *, maxiter: int = 12, popsize: int = 4, seed: int = 0,
+         failure_penalty_mm: float = 5.0, tie_mm: float = 0.002, knobs=None, scheduler: str | None = None,
+         workers: int | None = None, journal=None, sensitivity_points: int = 0, progress=None, on_row=None) -> TuneResult:
     """Search the method's knobs with differential evolution over ``sessions``.
 
     Parameters
     ----------
     method : str
         "paper" or "fast".
-    sessions : list of TuneSession
+    session_dirs : list of path
+        Rendered tuning sessions (:func:`tune_session_dirs`).
     base_params : dataclass, optional
         Values of everything not searched (default: the method's defaults).
     maxiter, popsize : int
@@ -411,8 +471,9 @@ def tune(method: str, sessions, base_params=None, *, maxiter: int = 12, popsize:
         Error (mm) that twice the default's time per pair is worth (tie-break).
     knobs : sequence of Knob, optional
         Default: ``KNOBS[method]``.
-    jobs : int
-        Parameter sets evaluated in parallel (processes).
+    scheduler, workers, journal
+        Where the evaluations run and are journalled (:class:`Evaluator`): a re-run with
+        the same journal resumes.
     sensitivity_points : int
         When > 0, also sweep each knob alone over this many values (see
         :func:`sensitivity`).
@@ -431,8 +492,8 @@ def tune(method: str, sessions, base_params=None, *, maxiter: int = 12, popsize:
     m = get_method(method)
     base = base_params if base_params is not None else m.params_type()
     knobs = tuple(knobs if knobs is not None else KNOBS[method])
-    with Evaluator(method, sessions, failure_penalty_mm, jobs) as ev_many:
-        default = evaluate(method, base, sessions, failure_penalty_mm)
+    with Evaluator(method, session_dirs, failure_penalty_mm, journal, scheduler, workers) as ev_many:
+        default = ev_many.one(base)
         ms_default = default.ms_median if np.isfinite(default.ms_median) else 100.0
         x0 = knob_values(base, knobs)
         history = [_row(knobs, x0, default, objective_value(default, ms_default, tie_mm), stage="default")]

@@ -16,11 +16,12 @@ from pathlib import Path
 
 from recon.params import dumps_toml, params_to_dict
 from rig.bench.render_cache import DEFAULT_CACHE_DIR
-from rig.bench.tune import KNOBS, evaluate, load_tune_sessions, tune, tuned_dict
+from rig.bench.tune import KNOBS, Evaluator, tune, tune_session_dirs, tuned_dict
 from rig.bench.tuneplot import plot_sensitivity
-from rig.cli.options import method_name, method_params, one_core
+from rig.cli.options import add_sweep_options, method_name, method_params
 from rig.progress import Progress
 from rig.rundir import write_json_atomic
+from rig.session import Session
 
 
 def _scene_files(items, option: str) -> list:
@@ -114,8 +115,8 @@ def _output_paths(args) -> tuple:
 
 
 def _check_counts(args) -> None:
-    """Refuse a search size (generations, population, sweep points, jobs) below one."""
-    for name in ("maxiter", "popsize", "points", "jobs"):
+    """Refuse a search size (generations, population, sweep points) below one."""
+    for name in ("maxiter", "popsize", "points"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name}: must be >= 1, got {getattr(args, name)}")
 
@@ -144,11 +145,16 @@ def _score_holdout(args, result, holdout: list, progress) -> tuple:
     (Evaluation, Evaluation)
         Default, tuned (errors in mm).
     """
-    hsessions = load_tune_sessions(holdout, args.cache, progress=progress)
-    held = (evaluate(args.method, result.default_params, hsessions, args.failure_penalty_mm),
-            evaluate(args.method, result.tuned_params, hsessions, args.failure_penalty_mm))
+    dirs = tune_session_dirs(holdout, args.cache, progress=progress)
+    with Evaluator(args.method, dirs, args.failure_penalty_mm, _journal(args), args.scheduler, args.workers) as ev:
+        held = tuple(ev.many([result.default_params, result.tuned_params]))
     print(_table("\nheld-out scenes (never seen by the search):", *held))
     return held
+
+
+def _journal(args) -> Path:
+    """The evaluations' journal: ``--journal``, or one beside the render cache that every search shares."""
+    return Path(args.journal) if args.journal else Path(args.cache) / "tune-journal.jsonl"
 
 
 def _changed_lines(result) -> list:
@@ -209,17 +215,17 @@ def _run(args) -> int:
     scenes, holdout = _scene_lists(args)
     base = method_params(args)
     knobs = _knobs(args.method, args.knobs)
-    one_core()
     report.mkdir(parents=True, exist_ok=True)
     history = _CsvLog(report / "history.csv", knobs)
     progress = Progress(enabled=not args.quiet, units={"tune": "eval", "sensitivity": "eval"})
     t0 = time.perf_counter()
-    sessions = load_tune_sessions(scenes, args.cache, progress=progress)
-    n_frames = sum(len(s.frames) for s in sessions)
+    sessions = tune_session_dirs(scenes, args.cache, progress=progress)
+    n_frames = sum(len(Session(d).frames) for d in sessions)
     print(f"tuning method {args.method!r} on {len(sessions)} scenes ({n_frames} frame pairs), "
           f"differential evolution: {args.maxiter} generations x {args.popsize} x knobs")
     result = tune(args.method, sessions, base, knobs=knobs, maxiter=args.maxiter, popsize=args.popsize, seed=args.seed,
-                  failure_penalty_mm=args.failure_penalty_mm, tie_mm=args.tie_mm, jobs=args.jobs,
+                  failure_penalty_mm=args.failure_penalty_mm, tie_mm=args.tie_mm, scheduler=args.scheduler,
+                  workers=args.workers, journal=_journal(args),
                   sensitivity_points=0 if args.no_sensitivity else args.points, progress=progress, on_row=history)
     if result.sensitivity:
         plot_sensitivity(result, report)
@@ -262,8 +268,10 @@ def register(sub) -> None:
     p.add_argument("--failure-penalty-mm", type=float, default=5.0, help="error a failed frame counts as (default %(default)s mm)")
     p.add_argument("--tie-mm", type=float, default=0.002,
                    help="error that twice the default's time per pair is worth: the time tie-break (default %(default)s mm)")
-    p.add_argument("--jobs", type=int, default=1,
-                   help="parameter sets evaluated in parallel (processes; default %(default)s: one core, clean timings)")
+    add_sweep_options(p)
+    p.add_argument("--journal", default=None, metavar="FILE",
+                   help="journal of finished evaluations, which a re-run of the search resumes from "
+                   "(default: CACHE/tune-journal.jsonl, shared by every search)")
     p.add_argument("--no-sensitivity", action="store_true", help="skip the one-parameter sweeps and their plots")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_run)
