@@ -1,7 +1,8 @@
 """``ctr-bench dataset``: sharded files for learned methods, read back without ctr-bench (issue 17 item 4).
 
 A 2-scene wide dataset at 320x240 (the smallest sensor drawn, at half scale) in
-shards of 4 samples: 6 samples, scene 1 straddling both shards. It must read back
+shards of 4 samples: 6 samples, scene 1 straddling both shards, built on the Dask sweep's
+in-process cluster. It must read back
 with json, numpy and PIL alone (docs/dataset.md's snippet runs in a fresh
 interpreter that imports no ctr-bench module), its labels must agree with the
 truth's projected centerlines, and a re-run must skip the finished shards.
@@ -27,6 +28,9 @@ ROOT = Path(__file__).resolve().parents[1]
 N, SEED, K = 2, 5, 4
 #: The smallest sensor drawn (640x480), rendered at half scale: 320x240.
 OPTS = ["--n", N, "--seed", SEED, "--max-megapixels", "0.31", "--scale", "0.5", "--quiet"]
+#: The tests that watch this process (a patched renderer or writer) build without a cluster; the fixture's
+#: build runs on the default in-process Dask cluster, and the resumed build must give its samples.
+HERE = ["--workers", 0]
 
 
 def _cli(*argv) -> int:
@@ -157,7 +161,7 @@ def test_a_rerun_skips_finished_shards(built, monkeypatch, capsys):
     _, out, cache = built
     before, rows = _mtimes(out), _rows(out)
     _no_render(monkeypatch)
-    assert _cli("dataset", *OPTS, "--shard-size", K, "--out", out, "--cache-dir", cache) == 0
+    assert _cli("dataset", *OPTS, "--shard-size", K, "--out", out, "--cache-dir", cache, *HERE) == 0
     assert "resuming: 2 of 2 shards finished (skipped), 0 scene(s) to write" in capsys.readouterr().err
     assert _mtimes(out) == before and _rows(out) == rows
 
@@ -176,14 +180,14 @@ def test_an_interrupted_build_resumes_where_it_stopped(built, tmp_path, monkeypa
         return real(task)
 
     monkeypatch.setattr(dataset, "write_scene", stop_at_second)
-    assert _cli("dataset", *OPTS, "--shard-size", 3, "--out", out, "--cache-dir", cache) == 130  # scene 1 interrupted
+    assert _cli("dataset", *OPTS, "--shard-size", 3, "--out", out, "--cache-dir", cache, *HERE) == 130  # scene 1 interrupted
     assert (out / "shard-00000" / "index.jsonl").exists() and not (out / "shard-00001" / "index.jsonl").exists()
     assert not (out / "index.jsonl").exists() and not json.loads((out / "dataset.json").read_text())["complete"]
     monkeypatch.setattr(dataset, "write_scene", real)
     first = _mtimes(out)
     capsys.readouterr()
     _no_render(monkeypatch)
-    assert _cli("dataset", *OPTS, "--shard-size", 3, "--out", out, "--cache-dir", cache) == 0
+    assert _cli("dataset", *OPTS, "--shard-size", 3, "--out", out, "--cache-dir", cache, *HERE) == 0
     assert "resuming: 1 of 2 shards finished (skipped), 1 scene(s) to write" in capsys.readouterr().err
     assert all(_mtimes(out)[p] == t for p, t in first.items() if p.parts[0] == "shard-00000")
     rows, rows1 = _rows(out), _rows(out1)
@@ -199,17 +203,17 @@ def test_another_dataset_is_refused_without_overwrite(built, tmp_path, monkeypat
     _, _, cache = built
     out = tmp_path / "ds"
     _no_render(monkeypatch)
-    assert _cli("dataset", *OPTS, "--shard-size", 3, "--out", out, "--cache-dir", cache) == 0
+    assert _cli("dataset", *OPTS, "--shard-size", 3, "--out", out, "--cache-dir", cache, *HERE) == 0
     (out / "notes.txt").write_text("mine")
     capsys.readouterr()
-    assert _cli("dataset", *OPTS, "--shard-size", 5, "--out", out, "--cache-dir", cache) == 2
+    assert _cli("dataset", *OPTS, "--shard-size", 5, "--out", out, "--cache-dir", cache, *HERE) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"ctr-bench dataset: error: {out}: holds a dataset with shard_size = 3, not 5; --overwrite replaces it, or choose another --out"
-    assert _cli("dataset", *OPTS, "--shard-size", 5, "--out", out, "--cache-dir", cache, "--overwrite") == 0
+    assert _cli("dataset", *OPTS, "--shard-size", 5, "--out", out, "--cache-dir", cache, "--overwrite", *HERE) == 0
     assert sorted(p.name for p in out.iterdir()) == ["dataset.json", "index.jsonl", "notes.txt", "scenes", "shard-00000", "shard-00001"]
     assert [len((out / s / "index.jsonl").read_text().splitlines()) for s in ("shard-00000", "shard-00001")] == [5, 1]
     other = tmp_path / "other"
     other.mkdir()
     (other / "a.txt").write_text("x")
-    assert _cli("dataset", *OPTS, "--out", other, "--cache-dir", cache) == 2
+    assert _cli("dataset", *OPTS, "--out", other, "--cache-dir", cache, *HERE) == 2
     assert f"--out {other}: exists and is not empty" in capsys.readouterr().err

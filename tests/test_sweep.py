@@ -154,3 +154,19 @@ def test_a_damaged_journal_line_in_the_middle_is_refused(tmp_path):
     p.write_text('{"key": "a", "digest": "d", "result": 1}\nnot json\n{"key": "b", "digest": "d", "result": 2}\n')
     with pytest.raises(SweepError, match=r"j.jsonl:2: not a sweep journal line"):
         Journal(p)
+
+
+def test_scenes_generate_render_fills_the_cache_once(tmp_path, capsys):
+    """``scenes generate --render`` renders each scene into the cache on the sweep; a re-run renders nothing."""
+    from rig.cli import main
+
+    argv = ["scenes", "generate", "--suite", "wide", "--n", "1", "--seed", "5", "--out", str(tmp_path / "scenes"),
+            "--render", "--cache-dir", str(tmp_path / "cache"), "--workers", "1", "--quiet"]
+    assert main(argv) == 0
+    sessions = sorted(p.name for p in (tmp_path / "cache").iterdir() if p.is_dir())
+    assert len(sessions) == 1 and sessions[0].startswith("wide-5-0-"), sessions
+    assert "rendered 1 scenes" in capsys.readouterr().out
+    journal = (tmp_path / "cache" / "render-journal.jsonl").read_text()
+    assert main(argv) == 0
+    assert (tmp_path / "cache" / "render-journal.jsonl").read_text() == journal, "nothing rendered again"
+    assert "rendering" not in capsys.readouterr().err

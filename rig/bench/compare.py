@@ -35,14 +35,12 @@ each method on each, and the paper's method at 50^3, 100^3 and 200^3 voxels.
 """
 from __future__ import annotations
 
-import os
 import sys
 import time
 import tracemalloc
 from dataclasses import replace
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 from recon.carving import CarvingParams
@@ -60,31 +58,6 @@ METHODS = ("paper", "fast", "icp-epipolar")
 
 
 PEERS = ("icp-epipolar",)
-
-
-# ----------------------------------------------------------------------------- one core
-def pin_one_core(index: int | None = None) -> int:
-    """Pin this process to one CPU and keep OpenCV/BLAS single-threaded; returns the CPU.
-
-    ``index``: which of the CPUs this process may use (modulo their count; a sweep's
-    worker k takes the k-th); default the last.
-    """
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
-    cpu = -1
-    if hasattr(os, "sched_setaffinity"):
-        cpus = sorted(os.sched_getaffinity(0))
-        cpu = cpus[-1] if index is None else cpus[index % len(cpus)]
-        os.sched_setaffinity(0, {cpu})
-
-    cv2.setNumThreads(1)
-    try:  # numpy may have been imported before the variables were set
-        from threadpoolctl import threadpool_limits
-
-        threadpool_limits(1)
-    except ImportError:
-        pass
-    return cpu
 
 
 # ----------------------------------------------------------------------------- sessions

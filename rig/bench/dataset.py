@@ -34,7 +34,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from rig.bench.render_cache import cached_session, twin_digest
+from rig.bench.render_cache import cached_session, code_digest
 from rig.bench.widebench import frame_footprint_mm, thinnest_tube_px, tube_px_class, write_suite
 from rig.progress import Progress
 from rig.rundir import RunDirError, json_text, write_json_atomic, writing
@@ -206,7 +206,7 @@ def write_scene(task: SceneTask) -> list:
 def _params(suite, n, seed, shard_size, scale, max_pixels, depth) -> dict:
     """What a re-run must match to continue a dataset; ``twin_code`` keeps one dataset from mixing renders of two twins."""
     return {"suite": suite, "n": n, "seed": seed, "shard_size": shard_size, "scale": scale, "max_pixels": max_pixels,
-            "depth": bool(depth), "twin_code": twin_digest()[:12]}
+            "depth": bool(depth), "twin_code": code_digest("twin")[:12]}
 
 
 def _ours(out: Path) -> list:

@@ -8,7 +8,7 @@ hash of everything the rendered images depend on:
 * the scene file's bytes (not its path: two copies of a file share a render);
 * the frame counts (``--n-frames``, ``--n-background-frames``), the kinematic
   model (``--model``) and the image scale;
-* the twin's own source (``twin/*.py``): a change to the renderer, the noise or
+* the twin's own source (``twin/**/*.py``, :func:`code_digest`): a change to the renderer, the noise or
   the kinematics renders again instead of serving images the code no longer makes.
 
 A session is rendered under a temporary name and renamed when complete, so an
@@ -18,18 +18,20 @@ longer opens, or holds fewer frames than the scene, is rendered again.
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import os
 import shutil
 import sys
 from dataclasses import replace
-from functools import lru_cache
 from pathlib import Path
 
 from recon.rigcal import RigCalibration
+from rig.bench.cores import pin_worker
 from rig.bench.scenes import render_scene_to
 from rig.session import Session, SessionError
+from twin.scene import load_scene
 
-__all__ = ["DEFAULT_CACHE_DIR", "scaled_scene", "twin_digest", "cache_key", "cached_session", "link_session"]
+__all__ = ["DEFAULT_CACHE_DIR", "scaled_scene", "code_digest", "cache_key", "cached_session", "link_session", "render_into_cache"]
 
 #: Where rendered sessions are cached unless a command's ``--cache-dir`` says otherwise
 #: (``run``, ``bench``, ``dataset``; ``bench --suite`` and ``dataset`` use its ``sessions/``).
@@ -47,17 +49,35 @@ def scaled_scene(scene, factor: float):
     return replace(scene, rig=new_rig)
 
 
-@lru_cache(maxsize=1)
-def twin_digest() -> str:
-    """Hash (hex) of the twin package's Python sources (what renders the images), read once per process."""
-    import importlib.util
+_CODE_DIGESTS: dict = {}
 
-    spec = importlib.util.find_spec("twin")
-    h = hashlib.sha256()
-    for folder in (spec.submodule_search_locations or []) if spec else []:
-        for path in sorted(Path(folder).glob("*.py")):
-            h.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
-    return h.hexdigest()
+
+def code_digest(*packages: str) -> str:
+    """Hash (hex) of the Python sources of ``packages`` (e.g. ``"twin"``), read once per process.
+
+    What a cached result depends on besides its inputs: the render cache keys renders by the
+    twin's code, and sweeps (:func:`rig.bench.sweep.task_digest`) their results by recon/,
+    twin/ and rig/.
+
+    Parameters
+    ----------
+    *packages : str
+        Importable package names.
+
+    Returns
+    -------
+    str
+        SHA-256 of every ``*.py`` file's path and bytes, package by package, files sorted.
+    """
+    if packages not in _CODE_DIGESTS:
+        h = hashlib.sha256()
+        for name in packages:
+            spec = importlib.util.find_spec(name)
+            for folder in (spec.submodule_search_locations or []) if spec else []:
+                for path in sorted(Path(folder).rglob("*.py")):
+                    h.update(f"{name}/{path.relative_to(folder)}".encode() + b"\0" + path.read_bytes() + b"\0")
+        _CODE_DIGESTS[packages] = h.hexdigest()
+    return _CODE_DIGESTS[packages]
 
 
 def cache_key(scene, factor: float = 1.0) -> str:
@@ -68,7 +88,7 @@ def cache_key(scene, factor: float = 1.0) -> str:
     except OSError:
         h.update(scene.source.encode())
     h.update(f"|frames={len(scene.joints)}|bg={scene.background_frames}|scale={factor:g}|model={scene.model}".encode())
-    h.update(f"|twin={twin_digest()}".encode())
+    h.update(f"|twin={code_digest('twin')}".encode())
     return h.hexdigest()[:12]
 
 
@@ -143,3 +163,13 @@ def link_session(src: Path, dst: Path) -> Path:
     shutil.copytree(src, tmp, copy_function=link)
     os.replace(tmp, dst)
     return dst
+
+
+def render_into_cache(scene_file, cache_dir) -> dict:
+    """A sweep task: render one scene file into ``cache_dir`` (nothing when it is cached).
+
+    Returns ``{"scene", "session", "frames"}``: the file, the cached session directory and its frame count.
+    """
+    pin_worker()
+    scene = load_scene(scene_file)
+    return {"scene": str(scene_file), "session": str(cached_session(scene, 1.0, Path(cache_dir))), "frames": len(scene.joints)}

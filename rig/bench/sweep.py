@@ -17,19 +17,20 @@ gets one line a key whatever happens, because only this process writes it.
 """
 from __future__ import annotations
 
+import functools
 import hashlib
-import importlib.util
 import json
 import os
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from distributed import Client, LocalCluster, as_completed, get_worker
+from distributed import Client, LocalCluster, as_completed
 
+from rig.bench.render_cache import code_digest
 from rig.rundir import json_safe
 
-__all__ = ["SweepError", "Task", "Journal", "dask_client", "run_sweep", "code_digest", "task_digest", "worker_index"]
+__all__ = ["SweepError", "Task", "Journal", "dask_client", "run_sweep", "task_digest", "dask_map"]
 
 #: Worker processes keep every numerical library on one thread: a task's time is one core's.
 _ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
@@ -51,33 +52,6 @@ class Task:
     fn: object
     args: tuple
     digest: str
-
-
-_CODE_DIGESTS: dict = {}
-
-
-def code_digest(*packages: str) -> str:
-    """Hash (hex) of the Python sources of ``packages`` (e.g. ``"recon", "twin"``), read once per process.
-
-    Parameters
-    ----------
-    *packages : str
-        Importable package names.
-
-    Returns
-    -------
-    str
-        SHA-256 of every ``*.py`` file's name and bytes, package by package, files sorted.
-    """
-    if packages not in _CODE_DIGESTS:
-        h = hashlib.sha256()
-        for name in packages:
-            spec = importlib.util.find_spec(name)
-            for folder in (spec.submodule_search_locations or []) if spec else []:
-                for path in sorted(Path(folder).rglob("*.py")):
-                    h.update(f"{name}/{path.relative_to(folder)}".encode() + b"\0" + path.read_bytes() + b"\0")
-        _CODE_DIGESTS[packages] = h.hexdigest()
-    return _CODE_DIGESTS[packages]
 
 
 def task_digest(*parts) -> str:
@@ -157,14 +131,15 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None, memo
         ``tcp://host:port`` of a running ``dask scheduler``; None starts a LocalCluster.
     n_workers : int, optional
         LocalCluster workers (default: one a core). Each is a process with one thread, so a
-        task's timings are one core's, as the benchmark reports them.
+        task's timings are one core's, as the benchmark reports them. 0: no cluster, the
+        tasks run one after another in this process (debugging, profiling).
     memory_per_worker : str
         LocalCluster memory limit per worker (``"auto"``: the machine's memory divided among
         the workers; ``"4GB"``...). A worker past it is restarted by Dask and its task rerun.
 
     Yields
     ------
-    distributed.Client
+    distributed.Client, or None with ``n_workers=0``
 
     Raises
     ------
@@ -179,23 +154,13 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None, memo
         with client:
             yield client
         return
+    if n_workers == 0:
+        yield None
+        return
     n = n_workers or os.cpu_count() or 1
     with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, memory_limit=memory_per_worker,
                       dashboard_address=None, env=_ONE_THREAD) as cluster, Client(cluster) as client:
         yield client
-
-
-def worker_index() -> int | None:
-    """In a task: the LocalCluster worker's number (0, 1, ...), to pin it to a core of its own; else None.
-
-    Workers started by hand (``dask worker``) are named by their address: the operating
-    system places them.
-    """
-    try:
-        name = get_worker().name
-    except ValueError:  # not inside a worker (the task run in this process)
-        return None
-    return name if isinstance(name, int) else None
 
 
 def run_sweep(client, tasks: list, journal: Journal, progress=None, stage: str = "sweep", retries: int = 2) -> list:
@@ -203,7 +168,8 @@ def run_sweep(client, tasks: list, journal: Journal, progress=None, stage: str =
 
     Parameters
     ----------
-    client : distributed.Client
+    client : distributed.Client or None
+        None runs the tasks here, one after another (:func:`dask_client` with 0 workers).
     tasks : list of Task
         Keys must be unique.
     journal : Journal
@@ -229,16 +195,43 @@ def run_sweep(client, tasks: list, journal: Journal, progress=None, stage: str =
     done = len(tasks) - len(todo)
     if progress:
         progress(stage, done, len(tasks))
-    futures = {client.submit(t.fn, *t.args, key=f"{t.key}-{t.digest}", pure=False, retries=retries): t for t in todo}
     errors = {}
-    for future in as_completed(futures):
-        task = futures.pop(future)
+    for task, outcome in _outcomes(client, todo, retries):
         try:
-            journal.append(task, future.result())
+            journal.append(task, outcome())
         except Exception as exc:  # the task's own failure, after its retries: reported, and retried by a re-run
             errors[task.key] = {"error": f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"}
-        future.release()
         done += 1
         if progress:
             progress(stage, done, len(tasks))
     return [errors[t.key] if t.key in errors else journal.get(t) for t in tasks]
+
+
+def _outcomes(client, tasks: list, retries: int):
+    """``(task, outcome)`` as each task finishes; ``outcome()`` returns its result or raises its exception."""
+    if client is None:
+        for t in tasks:
+            yield t, functools.partial(t.fn, *t.args)
+        return
+    futures = {client.submit(t.fn, *t.args, key=f"{t.key}-{t.digest}", pure=False, retries=retries): t for t in tasks}
+    for future in as_completed(futures):
+        yield futures.pop(future), future.result
+        future.release()
+
+
+def dask_map(client, retries: int = 2):
+    """A ``map`` over ``client``'s workers that yields each result as its task finishes (any order).
+
+    For work with its own resume (the dataset's finished shards): ``map_fn(fn, items)``
+    submits ``fn(item)`` for every item and yields the results in the order they finish; a
+    task that raised re-raises here, after its retries. Without a client, the builtin ``map``.
+    """
+    if client is None:
+        return map
+
+    def map_fn(fn, items):
+        futures = [client.submit(fn, item, pure=False, retries=retries) for item in items]
+        for future in as_completed(futures):
+            yield future.result()
+            future.release()
+    return map_fn

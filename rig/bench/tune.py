@@ -40,10 +40,10 @@ from scipy.optimize import differential_evolution
 from recon.errors import FrameError
 from recon.methods import get_method
 from recon.params import params_to_dict
-from rig.bench.compare import pin_one_core
+from rig.bench.cores import pin_worker
 from rig.bench.reconstruct import load_background_frames, mm_per_pixel
 from rig.bench.render_cache import cached_session
-from rig.bench.sweep import Journal, Task, dask_client, run_sweep, task_digest, worker_index
+from rig.bench.sweep import Journal, Task, dask_client, run_sweep, task_digest
 from rig.scoring import score_frame
 from rig.session import Session
 from twin.scene import load_scene
@@ -332,7 +332,7 @@ def evaluate_session_dir(method: str, params, session_dir: str) -> dict:
 
     Returns ``{"name", "records", "ms"}``; the worker is pinned to a core of its own on a LocalCluster.
     """
-    pin_one_core(worker_index())
+    pin_worker()
     s = load_tune_session(str(session_dir))
     records, ms = session_records(method, params, s)
     return {"name": s.name, "records": records, "ms": ms}

@@ -43,11 +43,12 @@ import numpy as np
 from recon.methods import METHODS, Method, get_method, register_method
 from recon.metrics import seen_by_all
 from recon.selfcheck import SelfCheckParams
-from rig.bench.compare import PEERS, method_status, pin_one_core
+from rig.bench.compare import PEERS, method_status
+from rig.bench.cores import pin_worker
 from rig.bench.peers import prepare_peer
 from rig.bench.reconstruct import reconstruct_session
 from rig.bench.render_cache import cached_session
-from rig.bench.sweep import Journal, SweepError, Task, dask_client, run_sweep, task_digest, worker_index
+from rig.bench.sweep import Journal, SweepError, Task, dask_client, run_sweep, task_digest
 from rig.progress import Progress
 from rig.rundir import write_json_atomic
 from rig.session import Session, TruthError
@@ -260,7 +261,7 @@ def scene_rows(path, classes: dict, methods: list, out_dir, cache_dir, selfcheck
     dict
         ``{"rows": [row per frame per method], "wall_s": {method: seconds}}``.
     """
-    pin_one_core(worker_index())
+    pin_worker()
     path, out_dir = Path(path), Path(out_dir)
     session_dir = cached_session(load_scene(path), 1.0, Path(cache_dir) / "sessions")
     classes = dict(classes, tube_px=tube_px_class(thinnest_tube_px(Session(session_dir))))

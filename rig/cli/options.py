@@ -182,5 +182,6 @@ def add_sweep_options(p, prefix: str = "") -> None:
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help=f"{prefix}run the sweep on this Dask scheduler (tcp://host:port; its workers need ctr-bench and "
                    "the cache and output folders); default: an in-process cluster on this machine")
-    p.add_argument("--workers", type=count(1), default=None, metavar="N",
-                   help=f"{prefix}workers of the in-process cluster (default: one a core)")
+    p.add_argument("--workers", type=count(0), default=None, metavar="N",
+                   help=f"{prefix}workers of the in-process cluster (default: one a core; 0: no cluster, "
+                   "the tasks run one after another in this process)")

@@ -9,7 +9,8 @@ import sys
 from pathlib import Path
 
 from rig.bench import widebench
-from rig.bench.compare import METHODS, bench, format_ratios, format_scaling, format_table, pin_one_core, scaling
+from rig.bench.compare import METHODS, bench, format_ratios, format_scaling, format_table, scaling
+from rig.bench.cores import pin_one_core
 from rig.bench.render_cache import DEFAULT_CACHE_DIR
 from rig.cli.options import add_scene_options, add_sweep_options, load_scene_from_args, megapixels_limit
 

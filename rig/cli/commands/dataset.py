@@ -4,7 +4,8 @@ Per frame pair: the images (PNG), per-pixel tube labels (PNG), the projected
 centerlines, the 3D backbone and the calibration (NPZ, JSON), and an index
 (``index.jsonl``, one line per sample), readable with numpy, PIL and json
 alone: docs/dataset.md. Built by :mod:`rig.bench.dataset` from the twin's sessions,
-rendered through the render cache that ``bench --suite`` uses.
+rendered through the render cache that ``bench --suite`` uses, a scene a task on the same
+Dask sweep (:mod:`rig.bench.sweep`: ``--scheduler`` or an in-process cluster).
 """
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ from pathlib import Path
 
 from rig.bench.dataset import build_dataset
 from rig.bench.render_cache import DEFAULT_CACHE_DIR
-from rig.cli.options import count, megapixels_limit
+from rig.bench.sweep import dask_client, dask_map
+from rig.cli.options import add_sweep_options, count, megapixels_limit
 
 
 def _scale(text: str) -> float:
@@ -27,9 +29,10 @@ def _scale(text: str) -> float:
 
 
 def _run(args) -> int:
-    meta = build_dataset(args.suite, args.n, args.seed, Path(args.out), Path(args.cache_dir), shard_size=args.shard_size,
-                         scale=args.scale, max_pixels=megapixels_limit(args.max_megapixels), depth=args.depth,
-                         overwrite=args.overwrite, quiet=args.quiet)
+    with dask_client(args.scheduler, args.workers) as client:
+        meta = build_dataset(args.suite, args.n, args.seed, Path(args.out), Path(args.cache_dir), shard_size=args.shard_size,
+                             scale=args.scale, max_pixels=megapixels_limit(args.max_megapixels), depth=args.depth,
+                             overwrite=args.overwrite, quiet=args.quiet, map_fn=dask_map(client))
     print(f"wrote {meta['samples']} samples of {meta['scenes']} {args.suite!r} scenes (seed {args.seed}) in "
           f"{len(meta['shards'])} shards into {args.out}; index: {Path(args.out) / 'index.jsonl'} (docs/dataset.md)")
     return 0
@@ -58,4 +61,5 @@ def register(sub) -> None:
                    help="DIR holds another dataset (or other files): remove what a dataset writes there "
                    "(dataset.json, index.jsonl, scenes/, shard-*/; nothing else) and start again")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_sweep_options(p)
     p.set_defaults(func=_run)

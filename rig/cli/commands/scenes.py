@@ -1,12 +1,18 @@
-"""``ctr-bench scenes generate --suite wide --n N --seed S --out DIR``: write generated twin scenes.
+"""``ctr-bench scenes generate --suite wide --n N --seed S --out DIR [--render]``: write generated twin scenes.
 
 Writes ``DIR/<name>.toml`` (one scene each, readable by every command that takes a
-scene) and ``DIR/index.json`` (name, file and class labels of each scene).
+scene) and ``DIR/index.json`` (name, file and class labels of each scene). With
+``--render`` every scene is also rendered into the render cache, a scene a task on a
+Dask sweep (:mod:`rig.bench.sweep`).
 """
 from __future__ import annotations
 
 from pathlib import Path
 
+from rig.bench.render_cache import DEFAULT_CACHE_DIR, render_into_cache
+from rig.bench.sweep import Journal, SweepError, Task, dask_client, run_sweep, task_digest
+from rig.cli.options import add_sweep_options
+from rig.progress import Progress
 from twin.scenegen import SUITES, generate_suite, write_suite
 
 
@@ -29,9 +35,26 @@ def _generate(args) -> int:
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out: {out} exists and is not a directory")
     scenes = generate_suite(args.suite, n, seed)
-    write_suite(scenes, out)
+    paths = write_suite(scenes, out)
     print(f"wrote {len(scenes)} {args.suite!r} scenes (seed {seed}) and {out / 'index.json'}")
+    if args.render:
+        _render(paths, args)
     return 0
+
+
+def _render(paths: list, args) -> None:
+    """Render every scene into the cache on the sweep's workers, journalled (a re-run renders only what is missing)."""
+    cache = Path(args.cache_dir)
+    tasks = [Task(p.stem, render_into_cache, (str(p), str(cache)), task_digest("render", p.read_text(), str(cache)))
+             for p in paths]
+    progress = Progress(enabled=not args.quiet, units={"render": "scene"})
+    with dask_client(args.scheduler, args.workers) as client:
+        done = run_sweep(client, tasks, Journal(cache / "render-journal.jsonl"), progress, stage="render")
+    progress.close()
+    failed = [(t.key, d["error"]) for t, d in zip(tasks, done) if "error" in d]
+    if failed:
+        raise SweepError(f"{failed[0][0]}: the render failed: {failed[0][1]} ({len(failed)} of {len(tasks)} scenes)")
+    print(f"rendered {len(done)} scenes into {cache} ({sum(d['frames'] for d in done)} frame pairs)")
 
 
 def register(sub) -> None:
@@ -46,4 +69,9 @@ def register(sub) -> None:
     g.add_argument("--n", default="40", help="number of scenes (default: 40)")
     g.add_argument("--seed", default="0", help="seed (default: 0); same suite, n and seed: same files")
     g.add_argument("--out", required=True, help="directory to write the scenes into")
+    g.add_argument("--render", action="store_true", help="also render every scene into the render cache (a Dask sweep)")
+    g.add_argument("--cache-dir", default=str(DEFAULT_CACHE_DIR / "sessions"),
+                   help="--render: where the sessions go (default %(default)s, where bench --suite looks)")
+    g.add_argument("--quiet", action="store_true", help="--render: no progress bar")
+    add_sweep_options(g, "--render: ")
     g.set_defaults(func=_generate)
