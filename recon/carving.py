@@ -32,6 +32,7 @@ import numpy as np
 from .camera import Camera
 from .distortion import distort_xy
 from .errors import FrameError
+from .geometry import transform_directions, transform_points
 
 __all__ = ["CarvingParams", "CarveResult", "bounding_box", "carve", "rig_center"]
 
@@ -158,8 +159,7 @@ def _frustum_box(camera, mask: np.ndarray, near: float, far: float) -> tuple[np.
     xy = camera.pixels_to_normalized(uv)
     rays = np.concatenate([xy, np.ones((4, 1))], axis=1)
     pts_cam = np.concatenate([rays * near, rays * far])
-    T = camera.T_world_cam
-    pts = pts_cam @ T[:3, :3].T + T[:3, 3]
+    pts = transform_points(camera.T_world_cam, pts_cam)
     return pts.min(axis=0), pts.max(axis=0)
 
 
@@ -361,12 +361,10 @@ def _grid_hits(view: _View, axes, radius_mm: float, slack_px: float) -> np.ndarr
     cells = np.argwhere(_dense_grid_hits(view, centres, cell_radius, slack_px + 1.5))
     # Voxels of the passing cells, separably again: camera coordinates of each
     # cell's origin (m, 3) plus those of the in-cell offsets (C^3, 3).
-    R = view.camera.T_cam_world[:3, :3]
-    t = view.camera.T_cam_world[:3, 3]
     org = np.stack([origins[a][cells[:, a]] for a in range(3)], axis=1)
-    org_cam = (org @ R.T + t).astype(np.float32)
+    org_cam = transform_points(view.camera.T_cam_world, org).astype(np.float32)
     offs = np.stack(np.meshgrid(*(np.arange(_CELL),) * 3, indexing="ij"), axis=-1).reshape(-1, 3)
-    offs_cam = ((offs * step) @ R.T).astype(np.float32)
+    offs_cam = transform_directions(view.camera.T_cam_world, offs * step).astype(np.float32)
     strides = np.array([shape[1] * shape[2], shape[2], 1])
     base = (cells * _CELL) @ strides
     off_flat = offs @ strides

@@ -38,6 +38,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from .geometry import transform_points
 from .paper import behind_base_pixels
 from .rigcal import RigCalibration
 
@@ -720,8 +721,7 @@ def _unseen_share(camera, others: list, ys: np.ndarray, xs: np.ndarray, uv_bb: n
     z = np.maximum(z0[:, None] + dz[:, None] * t[None, :], 1e-3)
     xy = camera.pixels_to_normalized(uv)
     pc = np.concatenate([xy[:, None, :] * z[:, :, None], z[:, :, None]], axis=2)
-    T = camera.T_world_cam
-    pw = pc.reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+    pw = transform_points(camera.T_world_cam, pc.reshape(-1, 3))
     seen = np.zeros(pw.shape[0], bool)
     for cam in others:
         uvo, d = cam.project(pw)

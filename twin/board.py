@@ -31,7 +31,7 @@ import numpy as np
 
 from recon.calibration import BoardSpec
 from recon.camera import Camera
-from recon.geometry import rotation_matrix
+from recon.geometry import rotation_matrix, transform_points
 
 from .noise import expose, frame_rng, jitter_camera
 from .scene import Scene, load_scene
@@ -368,7 +368,7 @@ def _board_centre(board: BoardSpec) -> np.ndarray:
 
 
 def _fits(camera: Camera, T_world_board: np.ndarray, outline: np.ndarray, margin_px: float) -> bool:
-    pts = outline @ T_world_board[:3, :3].T + T_world_board[:3, 3]
+    pts = transform_points(T_world_board, outline)
     uv, z = camera.project(pts)
     if np.any(z <= 1.0) or not np.all(np.isfinite(uv)):
         return False
@@ -408,7 +408,7 @@ class SetClearance:
             b = np.asarray(node.mesh.bounds, float)
             pose = renderer.pr_scene.get_pose(node)
             corners = np.array([[x, y, z] for x in b[:, 0] for y in b[:, 1] for z in b[:, 2]])
-            w = corners @ pose[:3, :3].T + pose[:3, 3]
+            w = transform_points(pose, corners)
             lo, hi = w.min(0), w.max(0)
             if np.sort(hi - lo)[1] > 300.0:  # a backdrop plane
                 continue
@@ -472,7 +472,7 @@ def sample_view_poses(
         T_world_board = camera.T_world_cam @ T_cam_board
         if not _fits(camera, T_world_board, outline, vr.edge_margin_px):
             continue
-        if clearance is not None and not clearance.clear(samples @ T_world_board[:3, :3].T + T_world_board[:3, 3]):
+        if clearance is not None and not clearance.clear(transform_points(T_world_board, samples)):
             continue
         out.append(T_world_board)
     return out
@@ -511,7 +511,7 @@ def sample_stereo_poses(
         T_world_board[:3, 3] = centre - R @ centre_b
         if not all(_fits(c, T_world_board, outline, 10.0) and _oblique_deg(c, T_world_board, board) < sr.max_oblique_deg for c in cams):
             continue
-        if clearance is not None and not clearance.clear(samples @ T_world_board[:3, :3].T + T_world_board[:3, 3]):
+        if clearance is not None and not clearance.clear(transform_points(T_world_board, samples)):
             continue
         out.append(T_world_board)
     return out
