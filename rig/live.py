@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from recon.rigcal import load_rig_calibration
 from rig.rundir import JOURNAL, last_journal_record, record_backbone
 from rig.session import read_image
 
@@ -151,8 +152,6 @@ class LiveLogger:
         session_dir, out_dir = Path(session_dir), Path(out_dir)
         rig = None
         try:
-            from recon.rigcal import load_rig_calibration
-
             rig = load_rig_calibration(session_dir / "rig.json")
         except (OSError, ValueError):
             pass

@@ -33,9 +33,11 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
 from PIL import Image, ImageDraw, ImageFont
 
 from recon.geometry import arc_length, closest_arc_length
+from recon.rigcal import load_rig_calibration
 from recon.tubemesh import radii_along, tube_mesh
 from rig.bench.meshes import recon_tube, truth_tube, write_frame_meshes
 from rig.rundir import read_run
@@ -693,8 +695,6 @@ def load_run(out_dir) -> RunData:
         except (OSError, json.JSONDecodeError):
             run.session_meta = {}
         try:
-            from recon.rigcal import load_rig_calibration
-
             run.rig = load_rig_calibration(run.session_dir / "rig.json")
         except (OSError, ValueError, KeyError):
             run.rig = None
@@ -744,8 +744,6 @@ _DASH = "\u2013"  # a missing number (an en dash)
 @functools.lru_cache(maxsize=1)
 def _template():
     """The report page's jinja2 template, loaded once (from the installed package, so a wheel finds it too)."""
-    from jinja2 import Environment, PackageLoader, StrictUndefined, select_autoescape
-
     env = Environment(loader=PackageLoader("rig.bench", "templates"),
                       # every template escapes: a note with markup in it shows as text, never runs
                       autoescape=select_autoescape(("html", "html.j2"), default=True),

@@ -53,6 +53,7 @@ from rig.progress import Progress
 from rig.rundir import write_json_atomic
 from rig.session import Session, TruthError
 from rig.tables import cell
+from twin import scenegen
 from twin.scene import load_scene
 
 __all__ = ["SILENT_WRONG_PX", "CLASS_KEYS", "thinnest_tube_px", "tube_px_class", "write_suite", "frame_footprint_mm", "score_run", "aggregate",
@@ -85,8 +86,6 @@ def write_suite(suite: str, n: int, seed: int, directory: Path, max_pixels: int 
     See :func:`twin.scenegen.write_suite`; ``max_pixels`` bounds the sensor sizes
     drawn (:func:`twin.scenegen.generate_suite`).
     """
-    from twin import scenegen
-
     scenes = scenegen.generate_suite(suite, n, seed, max_pixels=max_pixels)
     paths = scenegen.write_suite(scenes, directory)
     return [(p, {k: str(v) for k, v in g.classes.items()}) for p, g in zip(paths, scenes)]
