@@ -170,3 +170,28 @@ def test_scenes_generate_render_fills_the_cache_once(tmp_path, capsys):
     assert main(argv) == 0
     assert (tmp_path / "cache" / "render-journal.jsonl").read_text() == journal, "nothing rendered again"
     assert "rendering" not in capsys.readouterr().err
+
+
+def test_a_wide_bench_on_a_real_scheduler_equals_the_serial_run(tmp_path, scheduler):
+    """Two scenes of the wide suite, rendered, reconstructed and scored by both methods on the dask workers,
+    give the rows the same bench gives run one scene after another in this process (timings aside)."""
+    import csv
+
+    from rig.bench import widebench
+
+    address, _ = scheduler
+    opts = dict(quiet=True, max_pixels=310_000)
+    cache = tmp_path / "cache"
+    serial = widebench.run_suite("wide", 2, 5, ["paper", "fast"], tmp_path / "serial", cache, workers=0, **opts)
+    spread = widebench.run_suite("wide", 2, 5, ["paper", "fast"], tmp_path / "spread", cache, scheduler=address, **opts)
+
+    def rows(name):
+        return [{k: v for k, v in r.items() if k != "ms"} for r in csv.DictReader((tmp_path / name / "frames.csv").open())]
+
+    assert rows("spread") == rows("serial") and len(rows("serial")) == 2 * 2 * 3
+    for m in ("paper", "fast"):
+        drop = ("ms_per_pair_median", "wall_s")
+        assert {k: v for k, v in spread["methods"][m].items() if k not in drop} == \
+               {k: v for k, v in serial["methods"][m].items() if k not in drop}
+    keys = [json.loads(line)["key"] for line in (tmp_path / "spread" / "sweep.jsonl").read_text().splitlines()]
+    assert sorted(keys) == ["wide-5-0", "wide-5-1"]
