@@ -10,13 +10,17 @@ import zlib
 
 import cv2
 import numpy as np
+from numba import njit
 
 from recon.camera import Camera
 from recon.geometry import rotation_matrix
 
 from .scene import NoiseModel
 
-__all__ = ["frame_rng", "jitter_camera", "lighting_field", "vignetting_field", "expose", "jpeg_roundtrip"]
+__all__ = ["LUMA", "frame_rng", "jitter_camera", "lighting_field", "vignetting_field", "expose", "jpeg_roundtrip"]
+
+#: Weights of R, G, B in a mono sensor's signal (ITU-R BT.601 luma).
+LUMA = np.array([0.299, 0.587, 0.114], np.float32)
 
 
 def frame_rng(seed: int, stream: str, frame: int, camera: str) -> np.random.Generator:
@@ -90,8 +94,59 @@ def _ramped(noise: NoiseModel, shape: tuple, gain: float, offset: float, rng: np
         # A linear ramp is separable: an outer sum of a column and a row profile.
         col = (2.0 * amp * np.sin(theta)) * (np.arange(h, dtype=np.float32) / (h - 1) - 0.5)
         row = (2.0 * amp * np.cos(theta)) * (np.arange(w, dtype=np.float32) / (w - 1) - 0.5)
-        return (np.float32(gain) + col[:, None] + row[None, :]).astype(np.float32), offset
+        # Summed in float64 (theta and amp are float64) and stored as float32, without an extra pass.
+        field = np.empty((h, w), np.float32)
+        return np.add.outer(np.float32(gain) + col, row, out=field, casting="same_kind"), offset
     return np.full((h, w), gain, np.float32), offset
+
+
+@njit(cache=True, nogil=True)
+def _sensor_nb(signal, gain, offset, shot_per_dn, read_var, normal, out):  # pragma: no cover - compiled
+    """The per-pixel sensor model of :func:`expose`, fused into one pass (float32 throughout).
+
+    Pixel ``p``, channel ``k``: ``x = clip(signal[p, k] * gain[p] + offset, 0, 255)`` DN, plus
+    ``sqrt(x * shot_per_dn + read_var) * normal[p, k]`` when ``normal`` is not empty, rounded
+    half to even and saturated into ``out[p, k]`` (uint8). A ``gain`` of length 1 applies
+    to every pixel.
+    """
+    n, c = signal.shape
+    step = 1 if gain.shape[0] == n else 0
+    noisy = normal.shape[0] > 0
+    lo, hi = np.float32(0.0), np.float32(255.0)
+    for p in range(n):
+        g = gain[p * step]
+        for k in range(c):
+            x = min(max(signal[p, k] * g + offset, lo), hi)
+            if noisy:
+                x += np.sqrt(x * shot_per_dn + read_var) * normal[p, k]
+            out[p, k] = np.uint8(min(max(np.rint(x), lo), hi))
+    return out
+
+
+def _sensor(signal: np.ndarray, gain: np.ndarray, offset: float, noise: NoiseModel, rng: np.random.Generator) -> np.ndarray:
+    """Shot and read noise on ``clip(signal * gain + offset, 0, 255)`` DN, quantized to uint8 (``signal``'s shape).
+
+    Shot noise (Poisson in photo-electrons) and read noise (Gaussian in DN) add in
+    variance; with thousands of electrons at full scale the Poisson law is Gaussian to
+    within a fraction of a DN, and drawing one Gaussian field is ~10x faster. The field is
+    ``rng.standard_normal`` in float32 over ``signal``'s shape, the draws of the NumPy form
+    of this model: a scene's images (and the accuracy tests tuned on them) stay the same.
+
+    Parameters
+    ----------
+    signal : (H, W) or (H, W, 3) float32
+    gain : (H, W) float32 (DN per unit of signal), or (1,) for all pixels
+    offset : float
+        DN.
+    """
+    flat = np.ascontiguousarray(signal, dtype=np.float32).reshape(signal.shape[0] * signal.shape[1], -1)
+    shot = np.float32(255.0 / noise.photons_full_scale) if noise.photons_full_scale > 0 else np.float32(0.0)
+    read_var = np.float32(noise.read_noise_dn**2) if noise.read_noise_dn > 0 else np.float32(0.0)
+    noisy = shot > 0 or read_var > 0
+    normal = rng.standard_normal(signal.shape, dtype=np.float32).reshape(flat.shape) if noisy else np.zeros((0, 1), np.float32)
+    out = np.empty(flat.shape, np.uint8)
+    _sensor_nb(flat, np.ascontiguousarray(gain, dtype=np.float32).ravel(), np.float32(offset), shot, read_var, normal, out)
+    return out.reshape(signal.shape)
 
 
 def expose(radiance: np.ndarray, noise: NoiseModel, t_frames: float, rng: np.random.Generator, color: str = "mono") -> np.ndarray:
@@ -99,7 +154,7 @@ def expose(radiance: np.ndarray, noise: NoiseModel, t_frames: float, rng: np.ran
 
     Parameters
     ----------
-    radiance : (H, W, 3) float32 in [0, 1]
+    radiance : (H, W, 3) float32 in [0, 1], or (H, W) for a mono sensor's signal (already weighted by :data:`LUMA`)
     noise : NoiseModel
     t_frames : float
         Time of this exposure in frames since the session started (drives the drift).
@@ -110,24 +165,14 @@ def expose(radiance: np.ndarray, noise: NoiseModel, t_frames: float, rng: np.ran
     -------
     (H, W) or (H, W, 3) uint8
     """
-    if color == "mono":
-        img = radiance @ np.array([0.299, 0.587, 0.114], np.float32)
-    else:
-        img = radiance.copy()
+    img = radiance @ LUMA if color == "mono" and radiance.ndim == 3 else radiance
     gain, offset = lighting_field(noise, img.shape[:2], t_frames, rng)
-    img = img * ((gain if img.ndim == 2 else gain[..., None]) * np.float32(255.0)) + np.float32(offset)
+    gain *= np.float32(255.0)  # a fresh field: scaled in place
     if noise.blur_px > 0:
-        img = cv2.GaussianBlur(img, (0, 0), noise.blur_px)
-    img = np.clip(img, 0.0, 255.0)
-    # Shot noise (Poisson in photo-electrons) and read noise (Gaussian in DN) add in
-    # variance; with thousands of electrons at full scale the Poisson law is Gaussian to
-    # within a fraction of a DN, and drawing one Gaussian field is ~10x faster.
-    var = np.zeros_like(img) if noise.photons_full_scale <= 0 else img * np.float32(255.0 / noise.photons_full_scale)
-    if noise.read_noise_dn > 0:
-        var += np.float32(noise.read_noise_dn**2)
-    if noise.photons_full_scale > 0 or noise.read_noise_dn > 0:
-        img += np.sqrt(var) * rng.standard_normal(img.shape, dtype=np.float32)
-    out = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+        # The lens blurs the lit image; the sensor's noise comes after.
+        lit = img * (gain if img.ndim == 2 else gain[..., None]) + np.float32(offset)
+        img, gain, offset = cv2.GaussianBlur(lit, (0, 0), noise.blur_px), np.ones(1, np.float32), 0.0
+    out = _sensor(img, gain, offset, noise, rng)
     if noise.jpeg_quality > 0:
         out = jpeg_roundtrip(out, int(round(noise.jpeg_quality)))
     return out

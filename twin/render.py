@@ -6,6 +6,11 @@ remapping every sensor pixel through :meth:`recon.camera.Camera.undistort_pixels
 so rendered images obey exactly the Brown-Conrady model that calibration
 estimates. One OpenGL context is created per :class:`SetRenderer` and reused
 for every frame.
+
+The static set is rendered once per camera; per frame only the robot is drawn,
+in the window of the canvas that its box on the sensor resamples (a few per cent
+of the canvas), and composited over the set. Mono scenes are resampled and
+composited in one channel, the sensor's signal.
 """
 from __future__ import annotations
 
@@ -22,11 +27,13 @@ _PLATFORM = select_platform()
 import cv2  # noqa: E402
 import pyrender  # noqa: E402
 import trimesh  # noqa: E402
+from OpenGL import GL  # noqa: E402
 
 from recon.camera import Camera  # noqa: E402
 
 from . import mesh as meshes  # noqa: E402
 from .backdrop import auto_texture_px, backdrop_planes, place_clutter  # noqa: E402
+from .noise import LUMA  # noqa: E402
 from .scene import Scene  # noqa: E402
 from .textures import backdrop_texture  # noqa: E402
 
@@ -46,8 +53,9 @@ class View:
 
     Attributes
     ----------
-    radiance : (H, W, 3) float32
-        Linear-ish RGB in [0, 1] as the lens delivers it (distorted).
+    radiance : (H, W, 3) float32, or (H, W) for a mono scene
+        Linear-ish RGB in [0, 1] as the lens delivers it (distorted); for a mono scene
+        (``scene.color == "mono"``) the sensor's signal, RGB weighted by :data:`twin.noise.LUMA`.
     labels : (H, W) uint8 or None
         0 background, 1 + tube index where that tube is the visible robot surface
         (a pixel counts when the tube covers at least half of it).
@@ -63,8 +71,33 @@ class View:
 _RENDERERS: dict = {}
 
 
+class _ProgramCache(pyrender.shader_program.ShaderProgramCache):
+    """pyrender's shader program cache, keyed without the OpenGL context handle.
+
+    pyrender keys its cache on the current context as PyOpenGL returns it; under
+    OSMesa that is a new ctypes pointer object at every call, which never compares
+    equal to the last, so every pass recompiled its shaders (about 10 ms a pass) and
+    the cache grew by a program per primitive per pass. Each cache belongs to one
+    renderer, hence to one context, so the handle adds nothing to the key.
+    """
+
+    def __init__(self):
+        super().__init__()
+        self._by_source = {}
+
+    def get_program(self, vertex_shader, fragment_shader, geometry_shader=None, defines=None):
+        key = (vertex_shader, fragment_shader, geometry_shader, tuple(sorted((defines or {}).items())))
+        if key not in self._by_source:
+            self._by_source[key] = super().get_program(vertex_shader, fragment_shader, geometry_shader, defines)
+        return self._by_source[key]
+
+    def clear(self):
+        super().clear()
+        self._by_source = {}
+
+
 def _shared_renderer(width: int, height: int) -> "pyrender.OffscreenRenderer":
-    """One offscreen context per viewport size for the whole process.
+    """One offscreen context per canvas size for the whole process.
 
     pyrender's EGL platform terminates the process-wide EGL display when any
     renderer is deleted, which breaks every other live renderer; sharing one
@@ -74,7 +107,9 @@ def _shared_renderer(width: int, height: int) -> "pyrender.OffscreenRenderer":
     if key not in _RENDERERS:
         if not _RENDERERS:
             atexit.register(_release_renderers)
-        _RENDERERS[key] = pyrender.OffscreenRenderer(*key)
+        r = pyrender.OffscreenRenderer(*key)
+        r._renderer._program_cache = _ProgramCache()
+        _RENDERERS[key] = r
     return _RENDERERS[key]
 
 
@@ -126,12 +161,16 @@ class SetRenderer:
         self.scene = scene
         self.platform = _PLATFORM
         self.supersample = int(supersample or (2 if self.platform == "osmesa" else 1))
+        # A mono sensor sees one weighted sum of R, G, B: resampling and compositing that
+        # one channel is a third of the work of RGB (and the same, as both are linear).
+        self.mono = scene.color == "mono"
         cams = list(scene.rig.cameras.values())
         self.width, self.height = cams[0].width, cams[0].height
         self._maps = {}
         self._ideal = {}
         self._set_cache = {}
         self._set_depth_median = {}
+        self._map_buffers = {}
         margin = 4
         for cam in cams:
             margin = max(margin, self._margin_needed(cam))
@@ -168,13 +207,15 @@ class SetRenderer:
         return int(np.ceil(over)) + 3
 
     def _distortion_maps(self, cam: Camera) -> tuple:
-        """Sensor pixel -> ideal canvas position maps: float (mx, my) and OpenCV's fixed-point pair."""
+        """Sensor pixel -> ideal canvas position: OpenCV's fixed-point map pair.
+
+        Also keeps the float map ``_ideal[name]`` ((H, W, 2) float32, canvas px), the one
+        the jittered set view transforms.
+        """
         uu, vv = np.meshgrid(np.arange(cam.width, dtype=float), np.arange(cam.height, dtype=float))
         ideal = cam.undistort_pixels(np.stack([uu.ravel(), vv.ravel()], 1)) + self.margin
-        mx = ideal[:, 0].reshape(cam.height, cam.width).astype(np.float32)
-        my = ideal[:, 1].reshape(cam.height, cam.width).astype(np.float32)
-        self._ideal[cam.name] = (mx, my)
-        return cv2.convertMaps(mx, my, cv2.CV_16SC2)
+        self._ideal[cam.name] = ideal.reshape(cam.height, cam.width, 2).astype(np.float32)
+        return cv2.convertMaps(self._ideal[cam.name], None, cv2.CV_16SC2)
 
     def _add_set(self, scene: Scene) -> None:
         d = scene.dressing
@@ -250,7 +291,8 @@ class SetRenderer:
         for k, (idx, m) in enumerate(tube_meshes):
             flat = pyrender.MetallicRoughnessMaterial(baseColorFactor=[c / 255 for c in _SEG_COLORS[k]] + [1.0])
             node = self.pr_scene.add(pyrender.Mesh.from_trimesh(m, material=look, smooth=True))
-            truth = pyrender.Mesh.from_trimesh(m, material=flat, smooth=False)
+            # The same triangles, unlit: the flat pass needs neither normals nor unshared vertices.
+            truth = pyrender.Mesh([pyrender.Primitive(positions=m.vertices, indices=m.faces, material=flat)])
             truth.is_visible = False
             truth_node = self.pr_scene.add(truth)
             self._robot_nodes.append((node, truth_node, idx))
@@ -282,14 +324,17 @@ class SetRenderer:
             self._set_cache.clear()
 
     # ------------------------------------------------------------------ render
-    def _place_camera(self, camera: Camera) -> None:
+    def _place_camera(self, camera: Camera, origin: tuple = (0, 0)) -> None:
+        """Make ``camera`` pyrender's camera, for a viewport whose top-left pixel is canvas pixel ``origin`` (u, v)."""
         K = camera.K
         m = self.margin
         ss = self.supersample
+        u0, v0 = origin
         # pyrender's window coordinates put pixel centres at +0.5, OpenCV's at integers; a
-        # supersampled canvas scales window coordinates by ss.
+        # supersampled canvas scales window coordinates by ss. Moving the principal point by
+        # the origin makes the viewport a window of the full canvas (pyrender counts rows from the top).
         pr_cam = pyrender.IntrinsicsCamera(
-            fx=K[0, 0] * ss, fy=K[1, 1] * ss, cx=(K[0, 2] + m + 0.5) * ss, cy=(K[1, 2] + m + 0.5) * ss,
+            fx=K[0, 0] * ss, fy=K[1, 1] * ss, cx=(K[0, 2] + m + 0.5 - u0) * ss, cy=(K[1, 2] + m + 0.5 - v0) * ss,
             znear=20.0, zfar=2000.0,
         )
         if self._cam_node is not None:
@@ -315,32 +360,35 @@ class SetRenderer:
         """
         if camera.name not in self._maps:
             raise KeyError(f"renderer has no camera {camera.name!r}")
-        set_color, set_depth = self._set_view(camera)
+        radiance, set_map = self._set_radiance(camera)
         labels = depth = None
         if not self._robot_nodes:
-            return View(radiance=set_color, labels=None, depth_mm=None)
-        self._place_camera(camera)
+            return View(radiance=radiance, labels=None, depth_mm=None)
         box = self._robot_box(camera)
         if box is None:  # the robot is entirely outside this view
-            empty = (np.zeros(set_color.shape[:2], np.uint8), np.zeros(set_color.shape[:2], np.float32))
-            return View(radiance=set_color, labels=empty[0] if with_truth else None, depth_mm=empty[1] if with_truth else None)
+            empty = (np.zeros(radiance.shape[:2], np.uint8), np.zeros(radiance.shape[:2], np.float32))
+            return View(radiance=radiance, labels=empty[0] if with_truth else None, depth_mm=empty[1] if with_truth else None)
         (v0, v1), (u0, u1) = box
-        m1, m2 = self._maps[camera.name]
-        m1, m2 = m1[v0:v1, u0:u1], m2[v0:v1, u0:u1]
+        # Only the canvas window that the sensor box resamples is rendered (the robot covers
+        # a few per cent of the image; clearing, resolving and reading the whole canvas cost more than drawing it).
+        port = self._robot_viewport(camera, box)
+        self._place_camera(camera, port[:2])
+        m1, m2 = self._box_maps(camera, box, port[:2])
         look = [node.mesh for node, _, _ in self._robot_nodes]
         # Robot alone on black: colours come premultiplied by coverage. The coverage itself
         # comes from the flat label pass (OSMesa contexts have no alpha channel to carry it).
         # Only the robot's bounding box on the sensor is resampled and composited.
-        rgb, _ = self._render_only(look, pyrender.RenderFlags.NONE)
-        rgb = cv2.remap(rgb, m1, m2, cv2.INTER_LINEAR).astype(np.float32) * np.float32(1.0 / 255.0)
-        seg, lab, dep, hidden = self._truth_pass(m1, m2, set_depth[v0:v1, u0:u1])
-        visible = ~hidden
-        alpha = np.minimum(seg.sum(axis=2, dtype=np.float32) * np.float32(1.0 / 255.0), 1.0) * visible
-        radiance = set_color
-        radiance[v0:v1, u0:u1] = rgb * visible[..., None] + set_color[v0:v1, u0:u1] * (1.0 - alpha)[..., None]
+        rgb, _ = self._render_only(look, pyrender.RenderFlags.NONE, port[2:])
+        robot = self._signal(cv2.remap(rgb, m1, m2, cv2.INTER_LINEAR))
+        seg, lab, dep, hidden = self._truth_pass(m1, m2, self._set_depth(camera, set_map[v0:v1, u0:u1]), port[2:])
+        visible = (~hidden).astype(np.float32)
+        keep = 1.0 - np.minimum(seg.sum(axis=2, dtype=np.float32) * np.float32(1.0 / 255.0), 1.0) * visible
+        if robot.ndim == 3:
+            visible, keep = visible[..., None], keep[..., None]
+        radiance[v0:v1, u0:u1] = robot * visible + radiance[v0:v1, u0:u1] * keep
         if with_truth:
-            labels = np.zeros(set_color.shape[:2], np.uint8)
-            depth = np.zeros(set_color.shape[:2], np.float32)
+            labels = np.zeros(radiance.shape[:2], np.uint8)
+            depth = np.zeros(radiance.shape[:2], np.float32)
             labels[v0:v1, u0:u1] = lab
             depth[v0:v1, u0:u1] = dep
         return View(radiance=radiance, labels=labels, depth_mm=depth)
@@ -362,6 +410,36 @@ class SetRenderer:
             return None
         return (v0, v1), (u0, u1)
 
+    def _robot_viewport(self, camera: Camera, box: tuple) -> tuple:
+        """The canvas window ``(u0, v0, width, height)`` (canvas px) that remapping the sensor ``box`` reads.
+
+        It holds every canvas pixel the bilinear remap of the box touches (the fixed-point
+        maps may round up to the next pixel, hence one pixel more each side), kept inside
+        the canvas, where rendering it gives the same pixels as rendering the whole canvas.
+        Its size differs between cameras, so on EGL pyrender re-makes its framebuffer at
+        most renders: that costs under a millisecond (rounding sizes up saved nothing).
+        """
+        (v0, v1), (u0, u1) = box
+        box_ideal = self._ideal[camera.name][v0:v1, u0:u1]
+        origin, size = [], []
+        for ideal, full in ((box_ideal[..., 0], self.canvas[0]), (box_ideal[..., 1], self.canvas[1])):
+            lo = int(np.floor(ideal.min())) - 1
+            hi = int(np.floor(ideal.max())) + 3
+            n = min(hi - lo, full)
+            origin.append(int(np.clip(lo, 0, full - n)))
+            size.append(n)
+        return origin[0], origin[1], size[0], size[1]
+
+    def _box_maps(self, camera: Camera, box: tuple, origin: tuple) -> tuple:
+        """OpenCV's fixed-point distortion maps of the sensor ``box``, into a viewport whose top-left is canvas pixel ``origin``.
+
+        The integer part of the fixed-point maps is the canvas pixel; shifting it by the
+        origin leaves the sub-pixel weights, and so every resampled value, unchanged.
+        """
+        (v0, v1), (u0, u1) = box
+        m1, m2 = self._maps[camera.name]
+        return m1[v0:v1, u0:u1] - np.array(origin, np.int16), m2[v0:v1, u0:u1]
+
     @staticmethod
     def _hidden(z_robot: np.ndarray, z_set: np.ndarray) -> np.ndarray:
         """Where the robot is drawn behind the set (0.5 mm: beyond depth-buffer noise).
@@ -372,49 +450,94 @@ class SetRenderer:
         """
         return (z_robot > 0) & (z_set > 0) & (z_set < z_robot - 0.5)
 
-    def _render_only(self, meshes: list, flags) -> tuple:
-        """Render ``meshes`` alone (everything else hidden) on a transparent canvas."""
+    def _render_only(self, meshes: list, flags, size: tuple | None = None) -> tuple:
+        """Render ``meshes`` alone (everything else hidden) on a transparent canvas.
+
+        ``size``: (width, height) of the viewport in canvas px (default: the whole canvas),
+        at the camera last placed (:meth:`_place_camera` gives its origin). Returns its
+        colour (h, w, 3) uint8 and depth (h, w) float32 mm (0: nothing drawn), supersampling averaged out.
+        """
+        w, h = size or self.canvas
         shown = [m for m in self.pr_scene.meshes if m.is_visible]
         for m in shown:
             m.is_visible = False
         for m in meshes:
             m.is_visible = True
         try:
-            color, z = self._renderer.render(self.pr_scene, flags=flags)
+            color, z = self._draw(flags, w * self.supersample, h * self.supersample)
         finally:
             for m in meshes:
                 m.is_visible = False
             for m in shown:
                 m.is_visible = True
-        return self._downsample(color), self._downsample_depth(z)
+        return self._downsample(color, (w, h)), self._downsample_depth(z, (w, h))
+
+    def _draw(self, flags, width: int, height: int) -> tuple:
+        """pyrender's colour and depth of the scene in a ``width`` x ``height`` viewport (px of the supersampled canvas)."""
+        r = self._renderer
+        if self.platform != "osmesa":
+            # Framebuffer platforms: pyrender re-makes its framebuffer when the size changes.
+            r.viewport_width, r.viewport_height = width, height
+            return r.render(self.pr_scene, flags=flags)
+        # OSMesa has no framebuffer objects: pyrender would destroy the context to change the
+        # size (and with it every mesh and texture uploaded). Draw into the lower-left corner
+        # of the canvas-sized buffer instead, the way pyrender's OffscreenRenderer reads it back.
+        r._platform.make_current()
+        inner = r._renderer
+        inner.viewport_width, inner.viewport_height = width, height
+        # The scissor keeps the clear to the viewport (pyrender clears the whole buffer).
+        GL.glEnable(GL.GL_SCISSOR_TEST)
+        GL.glScissor(0, 0, width, height)
+        try:
+            inner.render(self.pr_scene, flags)
+        finally:
+            GL.glDisable(GL.GL_SCISSOR_TEST)
+        return inner.read_color_buf(), inner.read_depth_buf()
+
+    def _signal(self, color: np.ndarray) -> np.ndarray:
+        """Rendered colour (h, w, 3) uint8 as radiance in [0, 1]: float32 RGB, or its :data:`LUMA` sum (h, w) for a mono scene."""
+        radiance = color.astype(np.float32) * np.float32(1.0 / 255.0)
+        return radiance @ LUMA if self.mono else radiance
+
+    def _nominal_set(self, name: str) -> tuple:
+        """The set through camera ``name`` at its nominal pose, on the canvas: radiance (:meth:`_signal`) and depth (mm), cached."""
+        if name not in self._set_cache:
+            self._place_camera(self.scene.rig[name])
+            color, z = self._render_only(self._set_meshes, pyrender.RenderFlags.NONE)
+            self._set_cache[name] = (self._signal(color), z.astype(np.float32))
+        return self._set_cache[name]
+
+    def _set_radiance(self, camera: Camera) -> tuple:
+        """The set's radiance through ``camera`` at the sensor pixels (H, W[, 3]) float32, and its map (:meth:`_set_maps`)."""
+        image, z = self._nominal_set(camera.name)
+        set_map = self._set_maps(camera, z)
+        return cv2.remap(image, set_map, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE), set_map
 
     def _set_view(self, camera: Camera) -> tuple:
-        """The set through ``camera``: radiance (H, W, 3) float32 and depth (H, W) mm at sensor pixels."""
-        name = camera.name
-        if name not in self._set_cache:
-            nominal = self.scene.rig[name]
-            self._place_camera(nominal)
-            color, z = self._render_only(self._set_meshes, pyrender.RenderFlags.NONE)
-            self._set_cache[name] = (color, z.astype(np.float32))
-        color, z = self._set_cache[name]
-        mx, my = self._set_maps(camera, z)
-        radiance = cv2.remap(color, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        depth = cv2.remap(z, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
-        return radiance.astype(np.float32) * np.float32(1.0 / 255.0), depth
+        """The set through ``camera``: radiance (H, W[, 3]) float32 and depth (H, W) mm at the sensor pixels."""
+        radiance, set_map = self._set_radiance(camera)
+        return radiance, self._set_depth(camera, set_map)
 
-    def _set_maps(self, camera: Camera, z_nominal: np.ndarray) -> tuple:
-        """Sensor pixel -> position on the nominal canvas, through lens distortion and jitter.
+    def _set_depth(self, camera: Camera, set_map: np.ndarray) -> np.ndarray:
+        """The set's depth (mm, float32) at the sensor pixels whose :meth:`_set_maps` positions are ``set_map``."""
+        _, z = self._nominal_set(camera.name)
+        return cv2.remap(z, set_map, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+
+    def _set_maps(self, camera: Camera, z_nominal: np.ndarray) -> np.ndarray:
+        """Sensor pixel -> position on the nominal canvas, through lens distortion and jitter: (H, W, 2) float32 canvas px.
+
+        The map is the renderer's own (the camera's buffer, reused next frame): read it, do not keep it.
 
         The jitter (a camera motion of about a pixel) is applied as the homography of
         a fronto-parallel plane at the set's median depth: the parallax it neglects,
         between the robot's depth and the backdrop's, is below 0.1 px for the jitter
         of a rigid camera mount (0.035 mm at 300 vs 370 mm: 0.06 px).
         """
-        mx, my = self._ideal[camera.name]
+        ideal = self._ideal[camera.name]
         nominal = self.scene.rig[camera.name]
         D = camera.T_cam_world @ nominal.T_world_cam  # nominal camera frame -> jittered camera frame
         if np.allclose(D, np.eye(4), atol=1e-12):
-            return mx, my
+            return ideal
         if camera.name not in self._set_depth_median:
             self._set_depth_median[camera.name] = float(np.median(z_nominal[z_nominal > 0]))
         d = self._set_depth_median[camera.name]
@@ -423,28 +546,41 @@ class SetRenderer:
         Kc[:2, 2] += self.margin  # canvas coordinates
         R, t = D[:3, :3], D[:3, 3]
         H = Kc @ R.T @ (np.eye(3) - np.outer(t, [0.0, 0.0, 1.0]) / d) @ np.linalg.inv(Kc)
-        pts = np.stack([mx, my], axis=-1).reshape(-1, 1, 2)
-        out = cv2.perspectiveTransform(pts, H).reshape(mx.shape + (2,))
-        return out[..., 0], out[..., 1]
+        # Into the camera's own buffer: a fresh 6 MB map each frame costs more in page faults than the transform.
+        if camera.name not in self._map_buffers:
+            self._map_buffers[camera.name] = np.empty_like(ideal)
+        out = self._map_buffers[camera.name]
+        cv2.perspectiveTransform(ideal.reshape(-1, 1, 2), H, dst=out.reshape(-1, 1, 2))
+        return out
 
-    def _downsample(self, image: np.ndarray) -> np.ndarray:
-        """Average a supersampled canvas down to the canvas (area filter)."""
+    def _downsample(self, image: np.ndarray, size: tuple) -> np.ndarray:
+        """Average a supersampled viewport down to ``size`` (width, height) canvas px (area filter)."""
         if self.supersample == 1:
             return image
-        return cv2.resize(image, self.canvas, interpolation=cv2.INTER_AREA)
+        return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
-    def _downsample_depth(self, z: np.ndarray) -> np.ndarray:
+    def _downsample_depth(self, z: np.ndarray, size: tuple) -> np.ndarray:
+        """Depth of a supersampled viewport at ``size`` canvas px: the first sample of each pixel (no mixing of depths)."""
         if self.supersample == 1:
             return z
-        return cv2.resize(z, self.canvas, interpolation=cv2.INTER_NEAREST)
+        return cv2.resize(z, size, interpolation=cv2.INTER_NEAREST)
 
-    def _truth_pass(self, m1, m2, set_depth: np.ndarray) -> tuple:
+    def _truth_pass(self, m1, m2, set_depth: np.ndarray, size: tuple) -> tuple:
         """Robot coverage, labels and depth: the tubes alone, in flat label colours.
 
         A flat (unlit) colour pass keeps the renderer's anti-aliasing, so a label's
         coverage is resolved below a pixel; pyrender's SEG pass is not multisampled
         and would quantize the ground truth to whole pixels. Parts hidden by the
         set (inside the pin vise collar) are removed with the set's depth.
+
+        Parameters
+        ----------
+        m1, m2 : OpenCV fixed-point maps
+            Sensor box pixel -> viewport position (:meth:`_box_maps`).
+        set_depth : (h, w) float32
+            The set's depth (mm) at the box's sensor pixels.
+        size : (int, int)
+            Viewport (width, height) in canvas px, at the camera last placed.
 
         Returns
         -------
@@ -457,7 +593,7 @@ class SetRenderer:
         hidden : (H, W) bool
             Where the robot is drawn but the set is in front of it.
         """
-        seg, z = self._render_only([t.mesh for _, t, _ in self._robot_nodes], pyrender.RenderFlags.FLAT)
+        seg, z = self._render_only([t.mesh for _, t, _ in self._robot_nodes], pyrender.RenderFlags.FLAT, size)
         seg = cv2.remap(seg, m1, m2, cv2.INTER_LINEAR)
         depth = cv2.remap(z, m1, m2, cv2.INTER_NEAREST)
         hidden = self._hidden(depth, set_depth)

@@ -1,0 +1,81 @@
+"""The twin's sensor model: expose() is its NumPy form, bit for bit, and its noise is shot + read noise.
+
+The compiled per-pixel pass of :func:`twin.noise.expose` is checked against the NumPy
+form of the same model (the oracle below, drawing the same normals), and its noise
+against the variance the model predicts (shot noise in proportion to the signal, plus
+read noise). No OpenGL: these tests run anywhere.
+"""
+import numpy as np
+import pytest
+
+from twin.noise import LUMA, expose, frame_rng, lighting_field
+from twin.scene import NoiseModel
+
+SHAPE = (96, 128)
+
+
+def _oracle(radiance, noise, t_frames, rng):
+    """expose() of a mono signal (H, W) or RGB radiance (H, W, 3) as NumPy array passes, drawing the same normals."""
+    gain, offset = lighting_field(noise, radiance.shape[:2], t_frames, rng)
+    gain = gain * np.float32(255.0)
+    img = np.clip(radiance * (gain if radiance.ndim == 2 else gain[..., None]) + np.float32(offset), 0.0, 255.0)
+    var = img * np.float32(255.0 / noise.photons_full_scale) + np.float32(noise.read_noise_dn**2)
+    img += np.sqrt(var) * rng.standard_normal(img.shape, dtype=np.float32)
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+
+def _flat(level_dn: float) -> np.ndarray:
+    return np.full(SHAPE, level_dn / 255.0, np.float32)
+
+
+@pytest.mark.parametrize("color", ["mono", "rgb"])
+def test_expose_is_its_numpy_model_bit_for_bit(paper_scene, color):
+    shape = SHAPE if color == "mono" else SHAPE + (3,)
+    radiance = np.random.default_rng(0).uniform(0.0, 1.0, shape).astype(np.float32)
+    for t in (0.0, 17.0):
+        got = expose(radiance, paper_scene.noise, t, frame_rng(5, "expose-frame", 2, "side"), color)
+        want = _oracle(radiance, paper_scene.noise, t, frame_rng(5, "expose-frame", 2, "side"))
+        assert np.array_equal(got, want)
+
+
+def test_mono_signal_and_rgb_radiance_expose_alike(paper_scene):
+    rgb = np.random.default_rng(1).uniform(0.0, 1.0, SHAPE + (3,)).astype(np.float32)
+    a = expose(rgb, paper_scene.noise, 3.0, frame_rng(5, "x", 1, "top"))
+    b = expose(rgb @ LUMA, paper_scene.noise, 3.0, frame_rng(5, "x", 1, "top"))
+    assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("photons, read_dn", [(4000.0, 1.2), (4000.0, 0.0), (0.0, 2.0)])
+def test_noise_variance_is_shot_plus_read(photons, read_dn):
+    noise = NoiseModel(photons_full_scale=photons, read_noise_dn=read_dn)
+    for level in (20.0, 120.0, 230.0):
+        frames = np.stack([expose(_flat(level), noise, 0.0, frame_rng(3, "flat", i, "c")) for i in range(8)]).astype(float)
+        shot = level * 255.0 / photons if photons > 0 else 0.0
+        expected = shot + read_dn**2 + 1.0 / 12.0  # + rounding to whole DN
+        assert frames.mean() == pytest.approx(level, abs=0.05)
+        assert frames.var() == pytest.approx(expected, rel=0.03), f"level {level}"
+
+
+def test_noise_free_exposure_is_the_lit_signal_rounded():
+    noise = NoiseModel(gradient=0.03, offset_dn=1.5, flicker=0.01)
+    radiance = np.random.default_rng(2).uniform(0.0, 1.05, SHAPE).astype(np.float32)
+    gain, offset = lighting_field(noise, SHAPE, 5.0, frame_rng(9, "e", 0, "c"))
+    want = np.clip(np.rint(radiance * (gain * np.float32(255.0)) + np.float32(offset)), 0, 255).astype(np.uint8)
+    assert np.array_equal(expose(radiance, noise, 5.0, frame_rng(9, "e", 0, "c")), want)
+
+
+def test_frames_differ_and_repeat(paper_scene):
+    flat = _flat(150.0)
+    a = expose(flat, paper_scene.noise, 0.0, frame_rng(2016, "expose-frame", 0, "top"))
+    b = expose(flat, paper_scene.noise, 0.0, frame_rng(2016, "expose-frame", 1, "top"))
+    again = expose(flat, paper_scene.noise, 0.0, frame_rng(2016, "expose-frame", 0, "top"))
+    assert np.array_equal(a, again)
+    assert np.abs(a.astype(int) - b).mean() > 1.0
+
+
+def test_blur_and_rgb_keep_shape_and_level():
+    noise = NoiseModel(blur_px=1.0, photons_full_scale=4000.0, read_noise_dn=1.2)
+    rgb = np.full(SHAPE + (3,), 100.0 / 255.0, np.float32)
+    out = expose(rgb, noise, 0.0, frame_rng(1, "b", 0, "c"), color="rgb")
+    assert out.shape == SHAPE + (3,) and out.dtype == np.uint8
+    assert out.mean() == pytest.approx(100.0, abs=0.2)

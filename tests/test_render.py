@@ -1,0 +1,89 @@
+"""The twin's renderer draws the robot in a window of the canvas, and does it the way the whole canvas would.
+
+Only the canvas window that the robot's sensor box resamples is rendered per frame;
+these tests check that the window holds every pixel the remap reads and that it
+renders the same pixels as the whole canvas, on both offscreen platforms where present,
+and that pyrender's shaders are compiled once (under OSMesa it used to recompile them
+at every pass).
+"""
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from twin.gl import available_platforms
+
+pytestmark = pytest.mark.skipif(not available_platforms(), reason="no offscreen OpenGL library on this machine")
+
+#: Renders two robot frames of the paper scene on the platform in the environment and prints the
+#: renderer's shader program count after each, and the platform.
+_PROBE = """
+import json
+from rig.scenefiles import DEFAULT_SCENE
+from twin.scene import load_scene
+from twin.simulator import Twin
+tw = Twin(load_scene(DEFAULT_SCENE))
+cache = tw.renderer._renderer._renderer._program_cache
+counts = []
+for i in (3, 12):
+    tw.frame(i)
+    counts.append(len(cache._program_cache))
+print(json.dumps({"platform": tw.renderer.platform, "programs": counts}))
+"""
+
+
+@pytest.fixture(scope="module")
+def robot_view(paper_twin):
+    """The top camera of a rotated frame, with its sensor box and canvas window."""
+    f = paper_twin.frame(15)
+    cam = f.cameras["top"]
+    r = paper_twin.renderer
+    box = r._robot_box(cam)
+    return r, cam, box, r._robot_viewport(cam, box)
+
+
+def test_window_holds_every_canvas_pixel_the_box_remap_reads(robot_view):
+    r, cam, box, (u0, v0, w, h) = robot_view
+    m1, _ = r._box_maps(cam, box, (u0, v0))
+    # bilinear: each sensor pixel reads its canvas pixel and the next one right and down
+    assert m1[..., 0].min() >= 0 and m1[..., 1].min() >= 0
+    assert m1[..., 0].max() + 1 < w and m1[..., 1].max() + 1 < h
+    assert 0 <= u0 and u0 + w <= r.canvas[0] and 0 <= v0 and v0 + h <= r.canvas[1]
+
+
+@pytest.mark.parametrize("truth", [False, True], ids=["look", "labels"])
+def test_window_renders_what_the_whole_canvas_does(robot_view, truth):
+    import pyrender
+
+    r, cam, _, (u0, v0, w, h) = robot_view
+    meshes = [t.mesh if truth else n.mesh for n, t, _ in r._robot_nodes]
+    flags = pyrender.RenderFlags.FLAT if truth else pyrender.RenderFlags.NONE
+    r._place_camera(cam)
+    whole, z_whole = r._render_only(meshes, flags)
+    r._place_camera(cam, (u0, v0))
+    window, z_window = r._render_only(meshes, flags, (w, h))
+    ref, z_ref = whole[v0:v0 + h, u0:u0 + w], z_whole[v0:v0 + h, u0:u0 + w]
+    assert window.shape == ref.shape and (ref > 0).any()
+    # The window's projection differs from the canvas's in rounding only: a few anti-aliased edge pixels.
+    d = np.abs(window.astype(int) - ref).max(axis=-1)
+    assert (d > 2).mean() < 1e-3
+    assert ((z_window > 0) != (z_ref > 0)).mean() < 1e-3
+
+
+def test_mono_scenes_render_one_channel(paper_twin, paper_scene):
+    cam = paper_scene.rig["side"]
+    view = paper_twin.renderer.render(cam, with_truth=False)
+    assert paper_scene.color == "mono"
+    assert view.radiance.shape == (cam.height, cam.width) and view.radiance.dtype == np.float32
+
+
+@pytest.mark.parametrize("platform", available_platforms())
+def test_shaders_are_compiled_once(platform):
+    env = dict(os.environ, CTR_BENCH_GL=platform, PYOPENGL_PLATFORM=platform)
+    out = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, check=True)
+    seen = json.loads(out.stdout.strip().splitlines()[-1])
+    assert seen["platform"] == platform
+    assert seen["programs"][0] == seen["programs"][1], seen
