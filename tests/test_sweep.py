@@ -145,7 +145,7 @@ def test_a_changed_digest_runs_the_task_again_and_a_failure_is_reported_not_jour
 
 def test_no_scheduler_at_the_address_is_one_line():
     with pytest.raises(SweepError, match=r"--scheduler tcp://127.0.0.1:9: no Dask scheduler answers there"):
-        with dask_client("tcp://127.0.0.1:9"):
+        with dask_client("tcp://127.0.0.1:9", timeout_s=1.0):
             pass
 
 

@@ -122,7 +122,8 @@ class Journal:
 
 
 @contextmanager
-def dask_client(scheduler: str | None = None, n_workers: int | None = None, memory_per_worker: str = "auto"):
+def dask_client(scheduler: str | None = None, n_workers: int | None = None, memory_per_worker: str = "auto",
+                timeout_s: float = 10.0):
     """A ``distributed.Client``: on the scheduler at ``scheduler``, or on a new in-process LocalCluster.
 
     Parameters
@@ -136,6 +137,8 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None, memo
     memory_per_worker : str
         LocalCluster memory limit per worker (``"auto"``: the machine's memory divided among
         the workers; ``"4GB"``...). A worker past it is restarted by Dask and its task rerun.
+    timeout_s : float
+        How long to try to reach ``scheduler`` (s).
 
     Yields
     ------
@@ -144,11 +147,11 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None, memo
     Raises
     ------
     SweepError
-        No scheduler answers at ``scheduler`` within 10 s.
+        No scheduler answers at ``scheduler`` within ``timeout_s``.
     """
     if scheduler:
         try:
-            client = Client(scheduler, timeout="10s")
+            client = Client(scheduler, timeout=f"{timeout_s}s")
         except (OSError, TimeoutError) as exc:
             raise SweepError(f"--scheduler {scheduler}: no Dask scheduler answers there ({type(exc).__name__})") from None
         with client:
