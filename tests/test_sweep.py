@@ -147,6 +147,9 @@ def test_no_scheduler_at_the_address_is_one_line():
     with pytest.raises(SweepError, match=r"--scheduler tcp://127.0.0.1:9: no Dask scheduler answers there"):
         with dask_client("tcp://127.0.0.1:9", timeout_s=1.0):
             pass
+    with pytest.raises(SweepError, match=r"--scheduler notaurl: not a scheduler address \(.*\); expected tcp://host:port"):
+        with dask_client("notaurl", timeout_s=1.0):
+            pass
 
 
 def test_a_damaged_journal_line_in_the_middle_is_refused(tmp_path):

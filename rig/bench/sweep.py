@@ -154,6 +154,8 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None, memo
             client = Client(scheduler, timeout=f"{timeout_s}s")
         except (OSError, TimeoutError) as exc:
             raise SweepError(f"--scheduler {scheduler}: no Dask scheduler answers there ({type(exc).__name__})") from None
+        except ValueError as exc:  # e.g. "missing port number in address"
+            raise SweepError(f"--scheduler {scheduler}: not a scheduler address ({exc}); expected tcp://host:port") from None
         with client:
             yield client
         return
