@@ -56,7 +56,6 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 import strategies as S  # noqa: E402
 from test_envelope_cases import scored  # noqa: E402
-from test_properties import _render  # noqa: E402
 
 from recon.errors import FrameError  # noqa: E402
 
@@ -210,7 +209,7 @@ def run_sweep(sweep: Sweep, values, progress) -> list:
     for v in values:
         t0 = time.perf_counter()
         scene = scene_from_dict(sweep.build(v), source=f"<{sweep.case}={v}>")
-        stacks, frames = _render(scene)
+        stacks, frames = S.render_scene(scene)
         derived = sweep.measure(scene, frames[0], stacks) if sweep.measure else np.nan
         for m in METHODS:
             row = {"case": sweep.case, "quantity": sweep.quantity, "unit": sweep.unit, "value": float(v), "method": m,

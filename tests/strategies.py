@@ -77,6 +77,7 @@ __all__ = [
     "epipolar_dicts",
     "fold_dicts",
     "contrast_dicts",
+    "render_scene",
 ]
 
 PAPER_TOML = scene_path("paper.toml")
@@ -573,3 +574,15 @@ def params_for(method: str, scene):
 def mm_per_px(scene) -> float:
     """Mean pixel footprint (mm) of the scene's cameras at the robot's base."""
     return float(np.mean([c.mm_per_pixel_at(scene.rig.base_point_world_mm) for c in scene.rig.cameras.values()]))
+
+
+def render_scene(scene, n_background: int = 6) -> tuple:
+    """``(background stacks, frames)`` of a scene rendered by the twin: ``n_background`` background
+    pairs stacked per camera, and every robot frame (:class:`twin.simulator.Twin` frames, with truth)."""
+    from twin.simulator import Twin
+
+    with Twin(scene) as tw:
+        bgs = [tw.background(i) for i in range(n_background)]
+        frames = [tw.frame(i) for i in range(len(scene.joints))]
+    stacks = {n: np.stack([b.images[n] for b in bgs]) for n in bgs[0].images}
+    return stacks, frames

@@ -207,16 +207,6 @@ def test_background_model_on_twin_frames_within_their_noise(paper_backgrounds, p
         assert float(np.percentile(z, 99)) <= 3.0, name
 
 
-def _render(scene, n_background=6):
-    from twin.simulator import Twin
-
-    with Twin(scene) as tw:
-        bgs = [tw.background(i) for i in range(n_background)]
-        frames = [tw.frame(i) for i in range(len(scene.joints))]
-    stacks = {n: np.stack([b.images[n] for b in bgs]) for n in bgs[0].images}
-    return stacks, frames
-
-
 def _mean_bound(method, scene, result) -> float:
     """The mean error (mm) a method must stay within: one voxel edge (paper), 1.5 pixel footprints (fast)."""
     return float(np.max(result.voxel_size_mm)) if method == "paper" else 1.5 * S.mm_per_px(scene)
@@ -249,7 +239,7 @@ def test_paper_method_accurate_inside_the_envelope(data):
     from twin.scene import scene_from_dict
 
     scene = scene_from_dict(data)
-    _check_accuracy("paper", scene, *_render(scene))
+    _check_accuracy("paper", scene, *S.render_scene(scene))
 
 
 @pytest.mark.skipif(not S.method_available("fast"), reason="recon.fast is not importable or registers no 'fast' method")
@@ -260,7 +250,7 @@ def test_fast_method_accurate_inside_the_envelope(data):
     from twin.scene import scene_from_dict
 
     scene = scene_from_dict(data)
-    _check_accuracy("fast", scene, *_render(scene))
+    _check_accuracy("fast", scene, *S.render_scene(scene))
 
 
 # ============================================================================= outside the envelope
@@ -295,7 +285,7 @@ def test_tube_too_thin_is_a_frame_error_or_right(method, data, inner_od):
     data["robot"]["tubes"][1]["outer_diameter_mm"] = inner_od
     data["robot"]["tubes"][1]["inner_diameter_mm"] = inner_od / 2
     scene = scene_from_dict(data)
-    stacks, frames = _render(scene)
+    stacks, frames = S.render_scene(scene)
     rec = prepare(method, scene.rig, stacks, S.params_for(method, scene))
     try:
         r = rec(frames[0].images)
@@ -320,7 +310,7 @@ def _scene_with_inner_width(width_px: float):
         data["robot"]["tubes"][1]["outer_diameter_mm"] = round(od, 4)
         data["robot"]["tubes"][1]["inner_diameter_mm"] = round(0.55 * od, 4)
         scene = scene_from_dict(data)
-        _LIMIT_SCENES[width_px] = (scene, *_render(scene))
+        _LIMIT_SCENES[width_px] = (scene, *S.render_scene(scene))
     return _LIMIT_SCENES[width_px]
 
 
