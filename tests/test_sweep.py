@@ -58,7 +58,7 @@ def scheduler(tmp_path):
     address = json.loads(sched_file.read_text())["address"]
     for _ in range(2):
         procs.append(subprocess.Popen([str(DASK), "worker", address, "--nthreads", "1", "--nworkers", "1",
-                                       "--no-nanny", "--no-dashboard", "--host", "127.0.0.1"], env=env,
+                                       "--no-nanny", "--no-dashboard", "--host", "127.0.0.1", "--death-timeout", "30"], env=env,
                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
     try:
         yield address, procs[1:]
