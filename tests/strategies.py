@@ -555,15 +555,6 @@ NO_SHRINK = (Phase.explicit, Phase.reuse, Phase.generate)
 
 
 # ============================================================================= methods on twin scenes
-def method_available(name: str) -> bool:
-    """Whether ``name`` is a registered reconstruction method."""
-    try:
-        get_method(name)
-    except ValueError:
-        return False
-    return True
-
-
 def params_for(method: str, scene):
     """The method's default parameters with the scene's tube radii (what a user of that robot sets)."""
     t = scene.robot.tubes

@@ -30,13 +30,6 @@ from recon.metrics import backbone_errors  # noqa: E402
 #: Background frames depend on the seed, so examples that share them use the paper's.
 PAPER_SEED = st.just(None)
 
-_FAST_MISSING = pytest.mark.skipif(not S.method_available("fast"), reason="recon.fast is not importable or registers no 'fast' method")
-
-
-def _fast(*marks):
-    return pytest.param("fast", marks=[_FAST_MISSING, *marks])
-
-
 # ============================================================================= rendering, shared
 _BACKGROUNDS: dict = {}
 _SCENES: dict = {}
@@ -139,7 +132,7 @@ def pinned(method: str, value, wrong: str = "", raises=AssertionError):
     (and docs/envelope.md updated). Beyond a border a drawn example can land on either side of
     a method's failures, so these tests pin their values instead of drawing them.
     """
-    marks = [_FAST_MISSING] if method == "fast" else []
+    marks = []
     if wrong:
         marks.append(pytest.mark.xfail(strict=True, raises=raises, reason=f"measured 2026-12-02: {wrong}"))
     return pytest.param(method, value, marks=marks, id=f"{method}-{value}")
@@ -149,7 +142,7 @@ EXAMPLES = S.examples(1, 12)
 
 
 # ============================================================================= (a) pointing at a camera
-@pytest.mark.parametrize("method", ["paper", _fast()])
+@pytest.mark.parametrize("method", ["paper", "fast"])
 @settings(phases=S.NO_SHRINK, max_examples=EXAMPLES)
 @given(data=S.pointing_dicts(5.0, 90.0, seeds=PAPER_SEED))
 def test_tube_at_5_deg_or_more_to_a_camera_axis_is_accurate(method, data):
@@ -174,7 +167,7 @@ def test_tube_end_on_to_a_camera_is_a_frame_error_or_right(method, angle_deg):
 
 
 # ============================================================================= (b) along an epipolar plane
-@pytest.mark.parametrize("method", ["paper", _fast()])
+@pytest.mark.parametrize("method", ["paper", "fast"])
 @settings(phases=S.NO_SHRINK, max_examples=EXAMPLES)
 @given(data=S.epipolar_dicts(20.0, 90.0, seeds=PAPER_SEED))
 def test_tube_at_20_deg_or_more_to_the_epipolar_planes_is_accurate(method, data):
@@ -234,7 +227,7 @@ def test_fold_seen_apart_by_both_cameras_is_a_frame_error_or_right(method, tilt_
 
 
 # ============================================================================= (d) low contrast
-@pytest.mark.parametrize("method", ["paper", _fast()])
+@pytest.mark.parametrize("method", ["paper", "fast"])
 @settings(phases=S.NO_SHRINK, max_examples=EXAMPLES)
 @given(data=S.contrast_dicts(0.65, 0.86, seeds=PAPER_SEED))
 def test_backdrop_40_gray_levels_brighter_than_the_tubes_is_accurate(method, data):

@@ -242,7 +242,6 @@ def test_paper_method_accurate_inside_the_envelope(data):
     _check_accuracy("paper", scene, *S.render_scene(scene))
 
 
-@pytest.mark.skipif(not S.method_available("fast"), reason="recon.fast is not importable or registers no 'fast' method")
 @settings(phases=S.NO_SHRINK, max_examples=S.examples(3, 40))
 @given(ENVELOPE)
 def test_fast_method_accurate_inside_the_envelope(data):
@@ -254,7 +253,7 @@ def test_fast_method_accurate_inside_the_envelope(data):
 
 
 # ============================================================================= outside the envelope
-METHODS = ["paper", pytest.param("fast", marks=pytest.mark.skipif(not S.method_available("fast"), reason="recon.fast is not importable or registers no 'fast' method"))]
+METHODS = ["paper", "fast"]
 
 
 @pytest.mark.parametrize("method", METHODS)
