@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from rig.bench.sweep import Journal, SweepError, Task, dask_client, run_sweep, task_digest
+from rig.bench.sweep import Journal, SweepError, Task, dask_client, require_all, run_sweep, task_digest
 
 DASK = Path(sys.executable).with_name("dask")
 
@@ -141,6 +141,8 @@ def test_a_changed_digest_runs_the_task_again_and_a_failure_is_reported_not_jour
     assert _executions(marks) == {0: 2, 1: 2}
     assert bad == [{"error": "RuntimeError: task 7 cannot be done"}]
     assert Journal(tmp_path / "j.jsonl").get(Task("bad", fails, (7,), "d")) is None, "a re-run must try it again"
+    with pytest.raises(SweepError, match=r"j.jsonl: 1 of 1 scenes failed \(bad: RuntimeError: task 7 cannot be done\)"):
+        require_all([Task("bad", fails, (7,), "d")], bad, journal, "scene")
 
 
 def test_no_scheduler_at_the_address_is_one_line():

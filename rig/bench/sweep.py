@@ -30,7 +30,7 @@ from distributed import Client, LocalCluster, as_completed
 from rig.bench.render_cache import code_digest
 from rig.rundir import json_safe
 
-__all__ = ["SweepError", "Task", "Journal", "dask_client", "run_sweep", "task_digest", "dask_map"]
+__all__ = ["SweepError", "Task", "Journal", "dask_client", "run_sweep", "task_digest", "dask_map", "require_all"]
 
 #: Worker processes keep every numerical library on one thread: a task's time is one core's.
 _ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
@@ -210,6 +210,20 @@ def run_sweep(client, tasks: list, journal: Journal, progress=None, stage: str =
         if progress:
             progress(stage, done, len(tasks))
     return [errors[t.key] if t.key in errors else journal.get(t) for t in tasks]
+
+
+def require_all(tasks: list, results: list, journal: Journal, what: str = "task") -> list:
+    """``results`` of :func:`run_sweep`, or a one-line :class:`SweepError` naming the first task that failed.
+
+    A task that raised (after its retries) is a bug or a broken worker, not a frame a method
+    refused: nothing downstream can use a sweep with a hole in it. The others stay journalled,
+    and a re-run retries only the failed ones.
+    """
+    failed = [(t.key, r["error"]) for t, r in zip(tasks, results) if isinstance(r, dict) and "error" in r]
+    if failed:
+        raise SweepError(f"{journal.path}: {len(failed)} of {len(tasks)} {what}s failed ({failed[0][0]}: {failed[0][1]}); "
+                         "the others are journalled and a re-run retries these")
+    return results
 
 
 def _outcomes(client, tasks: list, retries: int):

@@ -43,7 +43,7 @@ from recon.params import params_to_dict
 from rig.bench.cores import pin_worker
 from rig.bench.reconstruct import load_background_frames, mm_per_pixel
 from rig.bench.render_cache import cached_session
-from rig.bench.sweep import Journal, Task, dask_client, run_sweep, task_digest
+from rig.bench.sweep import Journal, Task, dask_client, require_all, run_sweep, task_digest
 from rig.scoring import score_frame
 from rig.session import Session
 from twin.scene import load_scene
@@ -432,10 +432,8 @@ class Evaluator:
             tasks += [Task(f"{key}-{i}", evaluate_session_dir, (self.method, params, d),
                            task_digest("tune", self.method, params_to_dict(params), Path(d).name))
                       for i, d in enumerate(self.dirs)]
-        done = run_sweep(self.client, tasks, self.journal, self.progress, stage="evaluate")
-        failed = [d["error"] for d in done if "error" in d]
-        if failed:  # a bug in a method, not a frame it refused: the search cannot go on without it
-            raise RuntimeError(f"tune: an evaluation failed on a worker: {failed[0]}")
+        done = require_all(tasks, run_sweep(self.client, tasks, self.journal, self.progress, stage="evaluate"),
+                           self.journal, "evaluation")
         n = len(self.dirs)
         return [_evaluation([(d["name"], d["records"], d["ms"]) for d in done[k * n:(k + 1) * n]], self.penalty)
                 for k in range(len(params_list))]

@@ -48,7 +48,7 @@ from rig.bench.cores import pin_worker
 from rig.bench.peers import prepare_peer
 from rig.bench.reconstruct import reconstruct_session
 from rig.bench.render_cache import cached_session
-from rig.bench.sweep import Journal, SweepError, Task, dask_client, run_sweep, task_digest
+from rig.bench.sweep import Journal, Task, dask_client, require_all, run_sweep, task_digest
 from rig.progress import Progress
 from rig.rundir import write_json_atomic
 from rig.session import Session, TruthError
@@ -263,7 +263,8 @@ def scene_rows(path, classes: dict, methods: list, out_dir, cache_dir, selfcheck
     pin_worker()
     path, out_dir = Path(path), Path(out_dir)
     session_dir = cached_session(load_scene(path), 1.0, Path(cache_dir) / "sessions")
-    classes = dict(classes, tube_px=tube_px_class(thinnest_tube_px(Session(session_dir))))
+    session = Session(session_dir)  # read once: every method runs on it, and its rows are scored against it
+    classes = dict(classes, tube_px=tube_px_class(thinnest_tube_px(session)))
     rows, wall = [], {}
     for name in methods:
         if name in PEERS:
@@ -272,12 +273,12 @@ def scene_rows(path, classes: dict, methods: list, out_dir, cache_dir, selfcheck
         try:
             # The bench owns its runs/ tree: a second bench into the same --out replaces them.
             summary = reconstruct_session(session_dir, out_dir / "runs" / name / path.stem, name,
-                                          params=_robot_params(name, session_dir),
+                                          params=_robot_params(name, session),
                                           selfcheck=SelfCheckParams() if selfcheck else None, existing="overwrite")
         except ValueError as exc:  # set-up refused for the whole scene: every frame failed
             summary = {"per_frame": [{"frame": f.index, "status": "failed", "reason": str(exc).splitlines()[0]}
-                                     for f in Session(session_dir).frames]}
-        rows += score_run(summary, Session(session_dir), path.stem, name, classes)
+                                     for f in session.frames]}
+        rows += score_run(summary, session, path.stem, name, classes)
         wall[name] = time.perf_counter() - t0
     return {"rows": rows, "wall_s": wall}
 
@@ -332,13 +333,10 @@ def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache
                   task_digest("wide-scene", path.read_text(), classes, runnable, bool(selfcheck)))
              for path, classes in scenes]
     progress = Progress(enabled=not quiet, units={"scenes": "scene"})
+    journal = Journal(out_dir / "sweep.jsonl")
     with dask_client(scheduler, workers) as client:
-        done = run_sweep(client, tasks, Journal(out_dir / "sweep.jsonl"), progress, stage="scenes")
+        done = require_all(tasks, run_sweep(client, tasks, journal, progress, stage="scenes"), journal, "scene")
     progress.close()
-    failed = [(t.key, d["error"]) for t, d in zip(tasks, done) if "error" in d]
-    if failed:  # a bug or a broken worker, not a frame the method refused: nothing to score
-        raise SweepError(f"{out_dir / 'sweep.jsonl'}: {len(failed)} scene(s) failed ({failed[0][0]}: {failed[0][1]}); "
-                         "the others are journalled and a re-run retries these")
     rows = [r for name in runnable for d in done for r in d["rows"] if r["method"] == name]
     _write_rows(out_dir / "frames.csv", rows)
     results = {name: {"skipped": why} for name, why in skipped.items()}
@@ -361,7 +359,7 @@ def _write_rows(path: Path, rows: list) -> None:
         writer.writerows(rows)
 
 
-def _robot_params(method: str, session_dir):
+def _robot_params(method: str, session: Session):
     """The method's defaults with the session's tube radii, as ``ctr-bench reconstruct`` runs it.
 
     The tube radii describe the robot, not the method; with the defaults
@@ -369,7 +367,7 @@ def _robot_params(method: str, session_dir):
     drawn robot's.
     """
     params = get_method(method).params_type()
-    radii = Session(session_dir).robot_tube_radii_mm
+    radii = session.robot_tube_radii_mm
     if radii is not None and hasattr(params, "outer_tube_radius_mm") and hasattr(params, "inner_tube_radius_mm"):
         params = replace(params, outer_tube_radius_mm=radii[0], inner_tube_radius_mm=radii[1])
     return params

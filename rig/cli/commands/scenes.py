@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from rig.bench.render_cache import DEFAULT_CACHE_DIR, render_into_cache
-from rig.bench.sweep import Journal, SweepError, Task, dask_client, run_sweep, task_digest
+from rig.bench.sweep import Journal, Task, dask_client, require_all, run_sweep, task_digest
 from rig.cli.options import add_sweep_options
 from rig.progress import Progress
 from twin.scenegen import SUITES, generate_suite, write_suite
@@ -48,12 +48,10 @@ def _render(paths: list, args) -> None:
     tasks = [Task(p.stem, render_into_cache, (str(p), str(cache)), task_digest("render", p.read_text(), str(cache)))
              for p in paths]
     progress = Progress(enabled=not args.quiet, units={"render": "scene"})
+    journal = Journal(cache / "render-journal.jsonl")
     with dask_client(args.scheduler, args.workers) as client:
-        done = run_sweep(client, tasks, Journal(cache / "render-journal.jsonl"), progress, stage="render")
+        done = require_all(tasks, run_sweep(client, tasks, journal, progress, stage="render"), journal, "render")
     progress.close()
-    failed = [(t.key, d["error"]) for t, d in zip(tasks, done) if "error" in d]
-    if failed:
-        raise SweepError(f"{failed[0][0]}: the render failed: {failed[0][1]} ({len(failed)} of {len(tasks)} scenes)")
     print(f"rendered {len(done)} scenes into {cache} ({sum(d['frames'] for d in done)} frame pairs)")
 
 
