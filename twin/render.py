@@ -96,6 +96,32 @@ class _ProgramCache(pyrender.shader_program.ShaderProgramCache):
         self._by_source = {}
 
 
+class _SampledRenderer(pyrender.renderer.Renderer):
+    """pyrender's renderer with a settable multisample count for its offscreen framebuffer.
+
+    pyrender always makes a 4-sample framebuffer. llvmpipe shades a multisampled
+    fragment about twice as slowly, and the lit robot's shading is most of a frame's
+    drawing; its colour needs one sample a pixel (the coverage comes from the
+    multisampled flat pass), so the look pass asks for ``samples = 0``. A change of
+    count re-makes the framebuffer, as a change of size already does.
+    """
+
+    samples = 4
+    _fb_samples = 4
+
+    def _configure_main_framebuffer(self):
+        if self._fb_samples != self.samples:
+            self._delete_main_framebuffer()
+            self._fb_samples = self.samples
+        storage = pyrender.renderer.glRenderbufferStorageMultisample
+        # pyrender names the sample count in its call; swap the call for the one set here.
+        pyrender.renderer.glRenderbufferStorageMultisample = lambda target, _n, *rest: storage(target, self.samples, *rest)
+        try:
+            super()._configure_main_framebuffer()
+        finally:
+            pyrender.renderer.glRenderbufferStorageMultisample = storage
+
+
 def _shared_renderer(width: int, height: int) -> "pyrender.OffscreenRenderer":
     """One offscreen context per canvas size for the whole process.
 
@@ -108,6 +134,7 @@ def _shared_renderer(width: int, height: int) -> "pyrender.OffscreenRenderer":
         if not _RENDERERS:
             atexit.register(_release_renderers)
         r = pyrender.OffscreenRenderer(*key)
+        r._renderer.__class__ = _SampledRenderer
         r._renderer._program_cache = _ProgramCache()
         _RENDERERS[key] = r
     return _RENDERERS[key]
@@ -324,11 +351,14 @@ class SetRenderer:
             self._set_cache.clear()
 
     # ------------------------------------------------------------------ render
-    def _place_camera(self, camera: Camera, origin: tuple = (0, 0)) -> None:
-        """Make ``camera`` pyrender's camera, for a viewport whose top-left pixel is canvas pixel ``origin`` (u, v)."""
+    def _place_camera(self, camera: Camera, origin: tuple = (0, 0), ss: int | None = None) -> None:
+        """Make ``camera`` pyrender's camera, for a viewport whose top-left pixel is canvas pixel ``origin`` (u, v).
+
+        ``ss``: render pixels per canvas pixel, each way (default: the renderer's supersampling).
+        """
         K = camera.K
         m = self.margin
-        ss = self.supersample
+        ss = self.supersample if ss is None else ss
         u0, v0 = origin
         # pyrender's window coordinates put pixel centres at +0.5, OpenCV's at integers; a
         # supersampled canvas scales window coordinates by ss. Moving the principal point by
@@ -372,15 +402,13 @@ class SetRenderer:
         # Only the canvas window that the sensor box resamples is rendered (the robot covers
         # a few per cent of the image; clearing, resolving and reading the whole canvas cost more than drawing it).
         port = self._robot_viewport(camera, box)
-        self._place_camera(camera, port[:2])
         m1, m2 = self._box_maps(camera, box, port[:2])
-        look = [node.mesh for node, _, _ in self._robot_nodes]
-        # Robot alone on black: colours come premultiplied by coverage. The coverage itself
-        # comes from the flat label pass (OSMesa contexts have no alpha channel to carry it).
-        # Only the robot's bounding box on the sensor is resampled and composited.
-        rgb, _ = self._render_only(look, pyrender.RenderFlags.NONE, port[2:])
-        robot = self._signal(cv2.remap(rgb, m1, m2, cv2.INTER_LINEAR))
-        seg, lab, dep, hidden = self._truth_pass(m1, m2, self._set_depth(camera, set_map[v0:v1, u0:u1]), port[2:])
+        self._place_camera(camera, port[:2])
+        seg, lab, dep, hidden, coverage = self._truth_pass(m1, m2, self._set_depth(camera, set_map[v0:v1, u0:u1]), port[2:])
+        # Robot alone on black, premultiplied by the flat pass's coverage (OSMesa contexts
+        # have no alpha channel to carry it). Only the robot's box on the sensor is
+        # resampled and composited.
+        robot = self._signal(cv2.remap(self._look(camera, port, coverage), m1, m2, cv2.INTER_LINEAR))
         visible = (~hidden).astype(np.float32)
         keep = 1.0 - np.minimum(seg.sum(axis=2, dtype=np.float32) * np.float32(1.0 / 255.0), 1.0) * visible
         if robot.ndim == 3:
@@ -392,6 +420,36 @@ class SetRenderer:
             labels[v0:v1, u0:u1] = lab
             depth[v0:v1, u0:u1] = dep
         return View(radiance=radiance, labels=labels, depth_mm=depth)
+
+    def _look(self, camera: Camera, port: tuple, coverage: np.ndarray) -> np.ndarray:
+        """The lit robot in viewport ``port`` (canvas px), premultiplied by ``coverage``: (h, w, 3) float32 in [0, 255].
+
+        The lit pass is drawn with one sample a canvas pixel, which halves llvmpipe's
+        shading; its colour is exact where it covers a pixel centre. Edge pixels that
+        the flat pass covers but no centre sample did take the mean colour of their
+        covered neighbours (3x3, then 7x7). Where a thin tube leaves covered pixels with
+        no sampled neighbour, the lit pass is drawn again, multisampled, as it was.
+        """
+        look = [node.mesh for node, _, _ in self._robot_nodes]
+        self._place_camera(camera, port[:2], ss=1)
+        rgb, z = self._render_only(look, pyrender.RenderFlags.NONE, port[2:], ss=1, samples=0)
+        sampled = (z > 0).astype(np.float32)
+        colour = rgb.astype(np.float32) * sampled[..., None]
+        filled = colour
+        missing = (coverage > 0) & (sampled == 0)
+        for k in (3, 7):
+            if not missing.any():
+                break
+            n = cv2.boxFilter(sampled, -1, (k, k), normalize=False)
+            mean = cv2.boxFilter(colour, -1, (k, k), normalize=False) / np.maximum(n, 1.0)[..., None]
+            found = missing & (n > 0)
+            filled = np.where(found[..., None], mean, filled)
+            missing &= ~found
+        if missing.any():
+            self._place_camera(camera, port[:2])
+            rgb, _ = self._render_only(look, pyrender.RenderFlags.NONE, port[2:])
+            return rgb.astype(np.float32)
+        return filled * coverage[..., None]
 
     def _robot_box(self, camera: Camera, pad_px: int = 4):
         """Sensor rows and columns ``((v0, v1), (u0, u1))`` that can hold the robot, or None."""
@@ -450,33 +508,40 @@ class SetRenderer:
         """
         return (z_robot > 0) & (z_set > 0) & (z_set < z_robot - 0.5)
 
-    def _render_only(self, meshes: list, flags, size: tuple | None = None) -> tuple:
+    def _render_only(self, meshes: list, flags, size: tuple | None = None, ss: int | None = None, samples: int = 4) -> tuple:
         """Render ``meshes`` alone (everything else hidden) on a transparent canvas.
 
         ``size``: (width, height) of the viewport in canvas px (default: the whole canvas),
-        at the camera last placed (:meth:`_place_camera` gives its origin). Returns its
-        colour (h, w, 3) uint8 and depth (h, w) float32 mm (0: nothing drawn), supersampling averaged out.
+        at the camera last placed (:meth:`_place_camera` gives its origin and must be given
+        the same ``ss``, render pixels per canvas pixel; default the renderer's
+        supersampling). ``samples``: multisamples of a framebuffer platform (0: none).
+        Returns its colour (h, w, 3) uint8 and depth (h, w) float32 mm (0: nothing drawn),
+        supersampling averaged out.
         """
         w, h = size or self.canvas
+        ss = self.supersample if ss is None else ss
         shown = [m for m in self.pr_scene.meshes if m.is_visible]
         for m in shown:
             m.is_visible = False
         for m in meshes:
             m.is_visible = True
         try:
-            color, z = self._draw(flags, w * self.supersample, h * self.supersample)
+            color, z = self._draw(flags, w * ss, h * ss, samples)
         finally:
             for m in meshes:
                 m.is_visible = False
             for m in shown:
                 m.is_visible = True
+        if ss == 1:
+            return color, z
         return self._downsample(color, (w, h)), self._downsample_depth(z, (w, h))
 
-    def _draw(self, flags, width: int, height: int) -> tuple:
-        """pyrender's colour and depth of the scene in a ``width`` x ``height`` viewport (px of the supersampled canvas)."""
+    def _draw(self, flags, width: int, height: int, samples: int = 4) -> tuple:
+        """pyrender's colour and depth of the scene in a ``width`` x ``height`` viewport (render px), ``samples`` multisamples."""
         r = self._renderer
         if self.platform != "osmesa":
-            # Framebuffer platforms: pyrender re-makes its framebuffer when the size changes.
+            # Framebuffer platforms: pyrender re-makes its framebuffer when the size (or here the samples) change.
+            r._renderer.samples = samples
             r.viewport_width, r.viewport_height = width, height
             return r.render(self.pr_scene, flags=flags)
         # OSMesa has no framebuffer objects: pyrender would destroy the context to change the
@@ -592,9 +657,12 @@ class SetRenderer:
             Depth (mm) of the visible robot surface, 0 elsewhere.
         hidden : (H, W) bool
             Where the robot is drawn but the set is in front of it.
+        coverage : (h, w) float32
+            The robot's coverage of each viewport pixel (0-1), before resampling.
         """
-        seg, z = self._render_only([t.mesh for _, t, _ in self._robot_nodes], pyrender.RenderFlags.FLAT, size)
-        seg = cv2.remap(seg, m1, m2, cv2.INTER_LINEAR)
+        canvas_seg, z = self._render_only([t.mesh for _, t, _ in self._robot_nodes], pyrender.RenderFlags.FLAT, size)
+        coverage = np.minimum(canvas_seg.sum(axis=2, dtype=np.float32) * np.float32(1.0 / 255.0), np.float32(1.0))
+        seg = cv2.remap(canvas_seg, m1, m2, cv2.INTER_LINEAR)
         depth = cv2.remap(z, m1, m2, cv2.INTER_NEAREST)
         hidden = self._hidden(depth, set_depth)
         labels = np.zeros(seg.shape[:2], np.uint8)
@@ -604,7 +672,7 @@ class SetRenderer:
             labels[seg[..., ch] >= 128] = idx + 1
         labels[hidden] = 0
         depth[labels == 0] = 0.0
-        return seg, labels, depth, hidden
+        return seg, labels, depth, hidden, coverage
 
     def close(self) -> None:
         """Forget the renderer (the shared OpenGL context lives until the process exits)."""
