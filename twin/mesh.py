@@ -13,7 +13,7 @@ from recon.tubemesh import swept_rings
 
 from .robot import Backbone, Joints, Robot
 
-__all__ = ["tube_meshes", "ring_arc_lengths", "ring_sides", "swept_tube", "sample_backbone", "box_mesh", "cylinder_mesh", "plane_mesh"]
+__all__ = ["tube_meshes", "swept_tube", "sample_backbone", "box_mesh", "cylinder_mesh", "plane_mesh"]
 
 
 def sample_backbone(backbone: Backbone, s_mm: np.ndarray) -> tuple:
@@ -58,50 +58,14 @@ def swept_tube(points_mm: np.ndarray, frames: np.ndarray, radius_mm: float, side
     return trimesh.Trimesh(vertices=verts, faces=faces, process=False)
 
 
-def ring_arc_lengths(backbone: Backbone, start_mm: float, end_mm: float, tolerance_mm: float, max_step_mm: float = 4.0) -> np.ndarray:
-    """Arc lengths (mm) of a tube's rings between ``start_mm`` and ``end_mm``, closer where it bends.
-
-    A straight segment of length L across a bend of curvature k lies up to L^2 k / 8
-    inside the true surface; rings are spread so that this sagitta stays within
-    ``tolerance_mm`` (equal shares of the integral of sqrt(k / (8 tolerance))), and
-    at most ``max_step_mm`` apart where the tube is straight. Fewer, longer triangles
-    are what makes the software rasterizer fast: at a fixed 0.5 mm it shaded the
-    same pixels once per sliver.
-    """
-    s, T = backbone.s_mm, backbone.R_world_body[:, :, 2]
-    kappa = np.linalg.norm(np.gradient(T, s, axis=0), axis=1) if len(s) > 1 else np.zeros(len(s))
-    grid = np.linspace(start_mm, end_mm, max(2, int(np.ceil((end_mm - start_mm) / 0.1)) + 1))
-    # Outside the backbone (the part inside the actuation unit) the tube is straight.
-    density = np.maximum(np.sqrt(np.interp(grid, s, kappa, left=0.0, right=0.0) / (8.0 * tolerance_mm)), 1.0 / max_step_mm)
-    u = np.concatenate([[0.0], np.cumsum(0.5 * (density[1:] + density[:-1]) * np.diff(grid))])
-    n = max(1, int(np.ceil(u[-1])))
-    return np.interp(np.linspace(0.0, u[-1], n + 1), u, grid)
-
-
-def ring_sides(radius_mm: float, tolerance_mm: float) -> int:
-    """Vertices per ring (even, 12-64) so a polygon's flats lie within ``tolerance_mm`` of a circle of ``radius_mm``."""
-    cos_half = 1.0 - min(tolerance_mm / radius_mm, 1.0)
-    n = int(np.ceil(np.pi / max(np.arccos(cos_half), 1e-9)))
-    return int(np.clip(n + n % 2, 12, 64))
-
-
-def tube_meshes(backbone: Backbone, robot: Robot, joints: Joints, tolerance_mm: float = 0.01, hidden_mm: float = 8.0) -> list:
+def tube_meshes(
+    backbone: Backbone, robot: Robot, joints: Joints, step_mm: float = 0.5, hidden_mm: float = 8.0, sides: int = 32
+) -> list:
     """One closed mesh per tube, swept along ``backbone``.
 
     The outermost tube starts ``hidden_mm`` inside the actuation unit (s < 0) so
     no gap shows at the pin vise; each inner tube starts 1 mm inside the tube
     around it (where it is hidden) and ends at its own extension.
-
-    Parameters
-    ----------
-    backbone, robot, joints
-        The robot's shape, its tubes, and the extensions of this frame.
-    tolerance_mm : float
-        How far the triangles may depart from the true tube (mm): rings along the
-        bends (:func:`ring_arc_lengths`) and sides round each ring (:func:`ring_sides`).
-        The twin passes a tenth of the finest pixel footprint.
-    hidden_mm : float
-        Length of the outer tube drawn inside the actuation unit (mm).
 
     Returns
     -------
@@ -116,13 +80,10 @@ def tube_meshes(backbone: Backbone, robot: Robot, joints: Joints, tolerance_mm: 
         prev_end = ext
         if ext - start <= 1e-6 or (i > 0 and ext <= joints.extension_mm[i - 1]):
             continue
-        s = ring_arc_lengths(backbone, start, ext, tolerance_mm)
+        n = max(2, int(np.ceil((ext - start) / step_mm)) + 1)
+        s = np.linspace(start, ext, n)
         p, R = sample_backbone(backbone, s)
-        sides = ring_sides(tube.outer_radius_mm, tolerance_mm)
-        # An inscribed polygon looks thinner than its circle: this radius gives it the
-        # circle's mean width (perimeter / pi), so the silhouette errs both ways, not one.
-        radius = tube.outer_radius_mm * np.pi / (sides * np.sin(np.pi / sides))
-        out.append((i, swept_tube(p, R, radius, sides=sides)))
+        out.append((i, swept_tube(p, R, tube.outer_radius_mm, sides=sides)))
     return out
 
 

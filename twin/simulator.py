@@ -80,20 +80,6 @@ class Twin:
         """True backbone for ``joints`` with the scene's kinematic model (world mm)."""
         return solve(self.scene.robot, joints, self.scene.model)
 
-    def finest_footprint_mm(self, backbone: Backbone) -> float:
-        """The smallest length (mm) that one pixel spans on the robot, over the cameras: nearest depth / focal length.
-
-        The tube meshes are drawn to a tenth of it, so they are as fine as the closest view needs.
-        """
-        finest = np.inf
-        for cam in self.scene.rig.cameras.values():
-            _, z = cam.project(backbone.p_world_mm)
-            z = z[z > 0]
-            if z.size:
-                finest = min(finest, float(z.min()) / float(max(cam.K[0, 0], cam.K[1, 1])))
-        # A robot behind every camera is not drawn in any image; any fine mesh will do.
-        return finest if np.isfinite(finest) else 0.1
-
     def _shoot(self, stream: str, index: int, t_frames: float, with_truth: bool) -> tuple:
         sc = self.scene
         images, used, views = {}, {}, {}
@@ -134,7 +120,7 @@ class Twin:
         if joints is None:
             joints = sc.joints[index]
         bb = self.backbone(joints)
-        self.renderer.set_robot(tube_meshes(bb, sc.robot, joints, tolerance_mm=0.1 * self.finest_footprint_mm(bb)))
+        self.renderer.set_robot(tube_meshes(bb, sc.robot, joints))
         t = float(sc.background_frames + index)
         images, used, views = self._shoot("frame", index, t, with_truth=True)
         centerline = {name: cam.project(bb.p_world_mm)[0] for name, cam in used.items()}
