@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .geometry import transform_points
+from .geometry import arc_length, points_at_arc_length, transform_points
 from .paper import behind_base_pixels
 from .rigcal import RigCalibration
 
@@ -160,6 +160,29 @@ class SelfCheckParams:
         out). Such a point is off the robot by its distance from the base: the
         figure is an error itself, so the limit is the 10 footprints that
         separate good frames from wrong ones.
+    kink_chord_mm, max_strain, max_kink_px
+        No view judges the backbone's shape between the samples it is on: a
+        spike that leaves the tube for a few tube widths in one view and comes
+        back reprojects mostly onto foreground (wide-1-14 frame 1 of the paper
+        method: a 23-footprint V in the top view, reported ok). A tube cannot
+        bend that sharply: past its material's strain limit it kinks or yields
+        (superelastic Nitinol recovers about 8 %; ``max_strain`` 0.1 allows
+        more). The *kink* figure is the largest sagitta of the backbone over a
+        chord ``kink_chord_mm`` either side of a point, less the sagitta of an
+        arc of the tightest curvature the innermost tube allows,
+        ``max_strain / r_in`` (``kappa * L**2 / 2``), in pixel footprints
+        there; above ``max_kink_px`` the backbone is not a tube's shape.
+    max_start_gap_px : float
+        The robot is joined to its base. Where the base is outside a view, the
+        robot enters that view at its border, so a backbone must start at (or
+        beyond) the border of a view that does not see the base: the figure is
+        the smallest distance (px) of its first point from the border of any
+        such view. Where every view sees the base, it is the first point's
+        distance from the base (pixel footprints). A backbone that starts
+        further in left out the robot between (wide-1-63 frame 0 of the paper
+        method: the tube's first 60 px in the top view, which the band did not
+        touch). Both methods continue their backbones to the border and to the
+        base plane; 10 px, as the error that makes a frame wrong.
     """
 
     jitter_window_px: int = 1
@@ -194,6 +217,10 @@ class SelfCheckParams:
     tip_probe_ratio: float = 2.0
     tip_probe_start_px: float = 8.0
     tip_probe_px: float = 12.0
+    kink_chord_mm: float = 3.0
+    max_strain: float = 0.08
+    max_kink_px: float = 5.0
+    max_start_gap_px: float = 12.0
 
     def __post_init__(self):
         if int(self.jitter_window_px) != self.jitter_window_px or self.jitter_window_px < 0:
@@ -202,7 +229,8 @@ class SelfCheckParams:
                      "min_visible_px", "min_profile_fraction"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"SelfCheckParams: {name} must be >= 0")
-        for name in ("sample_step_px", "max_unexplained_fraction", "max_unexplained_px", "max_off_foreground_fraction", "max_centerline_rms_px"):
+        for name in ("sample_step_px", "max_unexplained_fraction", "max_unexplained_px", "max_off_foreground_fraction", "max_centerline_rms_px",
+                     "kink_chord_mm", "max_strain", "max_kink_px", "max_start_gap_px"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"SelfCheckParams: {name} must be > 0")
 
@@ -248,9 +276,10 @@ class SelfCheck:
     figures : dict
         Camera name -> ``{"unexplained_fraction", "unexplained_px",
         "off_foreground_fraction", "tip_off_foreground_px", "centerline_rms_px",
-        "centerline_max_px", "beyond_tip_contrast", "behind_base_px", "visible_px", "unseen_px"}``
-        (None where not measured: view not judged, no clean cross-section for
-        the RMS, ...). ``behind_base_px`` is the backbone's, the same in every view.
+        "centerline_max_px", "beyond_tip_contrast", "behind_base_px", "kink_px", "start_gap_px",
+        "visible_px", "unseen_px"}`` (None where not measured: view not judged, no clean
+        cross-section for the RMS, ...). ``behind_base_px``, ``kink_px`` and ``start_gap_px``
+        are the backbone's, the same in every view.
     ms : float
         Wall time of the check (ms).
     """
@@ -844,7 +873,7 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     """
     none = {"unexplained_fraction": None, "unexplained_px": None, "off_foreground_fraction": None, "centerline_rms_px": None, "centerline_max_px": None,
             "visible_px": 0.0, "unseen_px": None, "beyond_tip_contrast": None, "tip_off_foreground_px": None,
-            "behind_base_px": None}
+            "behind_base_px": None, "kink_px": None, "start_gap_px": None}
 
     uv, depth = _dense_projection(camera, points_world_mm, params.sample_step_px)
     finite = np.all(np.isfinite(uv), axis=1) & (depth > 1e-6)
@@ -921,7 +950,19 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     local = float(np.max(np.abs(_running_median(offs[good], win)))) if enough and good.sum() >= win else None
     return {"unexplained_fraction": unexplained, "unexplained_px": unexplained_px, "off_foreground_fraction": off,
             "centerline_rms_px": rms, "centerline_max_px": local, "visible_px": none["visible_px"], "unseen_px": unseen_px, "beyond_tip_contrast": beyond,
-            "tip_off_foreground_px": tip_off, "behind_base_px": None}
+            "tip_off_foreground_px": tip_off, "behind_base_px": None, "kink_px": None, "start_gap_px": None}
+
+
+def _footprints_mm(rig: RigCalibration, points_world_mm: np.ndarray) -> np.ndarray:
+    """The cameras' mean pixel footprint (mm per px: depth over focal length) at each point (n,); NaN where no camera has it in front."""
+    fp = []
+    for name in rig.names:
+        cam = rig[name]
+        z = cam.world_to_camera(points_world_mm)[:, 2]
+        fp.append(np.where(z > 1e-6, z, np.nan) / math.sqrt(cam.K[0, 0] * cam.K[1, 1]))
+    fp = np.stack(fp)
+    n = np.sum(np.isfinite(fp), axis=0)
+    return np.where(n > 0, np.nansum(fp, axis=0) / np.maximum(n, 1), np.nan)
 
 
 def _behind_base_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
@@ -939,14 +980,59 @@ def _behind_base_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
     pts = points_world_mm[(points_world_mm - b) @ np.asarray(rig.insertion_axis_world, np.float64) <= 1e-6]
     if not len(pts):
         return 0.0
-    fp = []
-    for name in rig.names:
-        cam = rig[name]
-        z = cam.world_to_camera(pts)[:, 2]
-        fp.append(np.where(z > 1e-6, z, np.nan) / math.sqrt(cam.K[0, 0] * cam.K[1, 1]))
-    fp = np.nanmean(np.stack(fp), axis=0)
+    fp = _footprints_mm(rig, pts)
     ok = np.isfinite(fp) & (fp > 0)
     return float(np.max(np.linalg.norm(pts[ok] - b, axis=1) / fp[ok])) if ok.any() else 0.0
+
+
+def _kink_px(rig: RigCalibration, points_world_mm: np.ndarray, r_in_mm: float, params: SelfCheckParams) -> float:
+    """How much more sharply the backbone bends than its innermost tube can (pixel footprints; 0 when it does not).
+
+    The largest sagitta (mm) of the backbone over the chord from ``kink_chord_mm``
+    before to as far after each point, less ``kappa L**2 / 2`` of the tightest
+    bend ``kappa = max_strain / r_in_mm`` (1/mm), over the cameras' mean footprint
+    there. Points nearer an end than the chord are not measured.
+    """
+    L = float(params.kink_chord_mm)
+    s = arc_length(points_world_mm)
+    mid = (s >= L) & (s <= s[-1] - L)
+    if not mid.any():
+        return 0.0
+    p = points_world_mm[mid]
+    a = points_at_arc_length(points_world_mm, s[mid] - L)
+    ab = points_at_arc_length(points_world_mm, s[mid] + L) - a
+    t = np.clip(np.sum((p - a) * ab, axis=1) / np.maximum(np.sum(ab * ab, axis=1), 1e-12), 0.0, 1.0)
+    sagitta_mm = np.linalg.norm(p - a - t[:, None] * ab, axis=1)
+    excess_px = (sagitta_mm - 0.5 * params.max_strain / r_in_mm * L * L) / _footprints_mm(rig, p)
+    excess_px = excess_px[np.isfinite(excess_px)]
+    return float(max(0.0, excess_px.max())) if excess_px.size else 0.0
+
+
+def _start_gap_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
+    """How far in from where the robot must enter the backbone starts (px; see ``SelfCheckParams.max_start_gap_px``).
+
+    The smallest distance of the first point's projection from the border of a
+    view whose image the base is not in (0 where the point itself is outside
+    that image); with the base in every image, the first point's distance from
+    the base in pixel footprints.
+    """
+    base = np.asarray(rig.base_point_world_mm, np.float64)
+    first = points_world_mm[:1]
+    gaps = []
+    for name in rig.names:
+        cam = rig[name]
+        uv_b, z_b = cam.project(base[None])
+        if z_b[0] > 1e-6 and np.all(np.isfinite(uv_b)) and cam.in_image(uv_b)[0]:
+            continue
+        uv, z = cam.project(first)
+        if not (z[0] > 1e-6 and np.all(np.isfinite(uv)) and cam.in_image(uv)[0]):
+            return 0.0
+        u, v = uv[0] + 0.5  # from the image's outer edge, half a pixel beyond the border pixels' centres
+        gaps.append(min(u, v, cam.width - u, cam.height - v))
+    if gaps:
+        return float(max(0.0, min(gaps)))
+    fp = _footprints_mm(rig, first)[0]
+    return float(np.linalg.norm(first[0] - base) / fp) if np.isfinite(fp) and fp > 0 else 0.0
 
 
 def _verdict(figures: dict, params: SelfCheckParams) -> str | None:
@@ -964,6 +1050,10 @@ def _verdict(figures: dict, params: SelfCheckParams) -> str | None:
              lambda x, lim: f"{cam}: the reprojected tube's last {x:.0f} px are not on foreground (limit {lim:.0f} px)"),
             ("behind_base_px", params.max_behind_base_px,
              lambda x, lim: f"the backbone reaches {x:.0f} px (pixel footprints) behind the robot base (limit {lim:.0f} px)"),
+            ("kink_px", params.max_kink_px,
+             lambda x, lim: f"the backbone bends {x:.0f} px (pixel footprints) more sharply than a tube can (limit {lim:.0f} px)"),
+            ("start_gap_px", params.max_start_gap_px,
+             lambda x, lim: f"the backbone starts {x:.0f} px in from where the robot enters the views (limit {lim:.0f} px): the robot before it is missing"),
             ("beyond_tip_contrast", params.max_beyond_tip_contrast,
              lambda x, lim: f"{cam}: the tube goes on beyond the reprojected tip (contrast {x:.1f}, limit {lim:.1f})"),
             ("centerline_rms_px", params.max_centerline_rms_px,
@@ -1027,9 +1117,10 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
             gray = gray * np.uint8(255)  # a 0/1 mask
         others = [model.rig[o] for o in model.rig.names if o != name]
         figures[name] = _judge_view(view, cam, gray, pts, (r_out, r_in), params, others, model.rig.base_point_world_mm)
-    behind = _behind_base_px(model.rig, pts)
+    shape = {"behind_base_px": _behind_base_px(model.rig, pts), "kink_px": _kink_px(model.rig, pts, r_in, params),
+             "start_gap_px": _start_gap_px(model.rig, pts)}
     for f in figures.values():
-        f["behind_base_px"] = behind
+        f.update(shape)
     reason = _verdict(figures, params)
     if reason is None and not any(f["unexplained_fraction"] is not None for f in figures.values()):
         reason = "the reprojected backbone is in no camera's image"

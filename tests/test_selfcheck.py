@@ -340,3 +340,58 @@ def test_a_backbone_that_starts_behind_the_base_is_flagged(model, rendered):
     # On the plane itself, 2 mm aside (a continuation to the base plane that missed the base): the same.
     on_plane = np.concatenate([[base + 2.0 * aside], rendered.truth])
     assert _check(model, rendered, on_plane).figures["side"]["behind_base_px"] > SelfCheckParams().max_behind_base_px
+
+
+def _spiked(truth, s_mm, height_mm: float, half_width_mm: float):
+    """The truth with a V-shaped spike of ``height_mm`` across it, ``2 half_width_mm`` wide, half way along."""
+    s_mid = 0.5 * s_mm[-1]
+    w = np.clip(1.0 - np.abs(s_mm - s_mid) / half_width_mm, 0.0, None)
+    i = int(np.argmin(np.abs(s_mm - s_mid)))
+    t = truth[i + 1] - truth[i - 1]
+    across = np.cross(t, [0.0, 0.0, 1.0])
+    across /= np.linalg.norm(across)
+    return truth + height_mm * w[:, None] * across
+
+
+def test_a_backbone_with_a_spike_no_tube_can_bend_is_flagged(model, rendered):
+    # wide-1-14 frame 1 (paper method): a V 23 footprints high that left the tube for a few tube
+    # widths in one view was reported ok. 3 mm high over 2 mm: far past any tube's strain limit.
+    lim = SelfCheckParams().max_kink_px
+    sc = _check(model, rendered, _spiked(rendered.truth, rendered.s_mm, 3.0, 1.0))
+    assert not sc.ok
+    assert sc.figures["side"]["kink_px"] > 2 * lim
+    assert _check(model, rendered, rendered.truth).figures["side"]["kink_px"] < 0.5 * lim
+    # Only the figure: the same spike read on its own says why.
+    spiked = _spiked(rendered.truth, rendered.s_mm, 3.0, 1.0)
+    only = SelfCheckParams(max_centerline_local_px=1e9, max_off_foreground_fraction=1.0, max_unexplained_fraction=1.0,
+                           max_unexplained_px=1e9, max_centerline_rms_px=1e9)
+    sc = check_backbone(model, rendered.frame.images, spiked, rendered.radii, only)
+    assert "more sharply than a tube can" in sc.reason, sc.reason
+
+
+def test_a_backbone_that_starts_short_of_the_border_is_flagged(rendered):
+    # wide-1-63 frame 0 (paper method): with the base out of view, a backbone starting 60 px in
+    # from the border left out the robot before it, and no foreground touching its band showed it.
+    crops = {c: int(rendered.rig[c].project(rendered.rig.base_point_world_mm[None])[0][0, 0]) + 150 for c in rendered.rig.names}
+    rig = RigCalibration({c: _cropped(rendered.rig[c], x0) for c, x0 in crops.items()},
+                         rendered.rig.base_point_world_mm, rendered.rig.insertion_axis_world)
+    model = prepare_selfcheck(rig, {c: np.ascontiguousarray(s[:, :, crops[c]:]) for c, s in rendered.background.items()})
+    images = {c: np.ascontiguousarray(img[:, crops[c]:]) for c, img in rendered.frame.images.items()}
+    lim = SelfCheckParams().max_start_gap_px
+    good = check_backbone(model, images, rendered.truth, rendered.radii)
+    assert good.figures["side"]["start_gap_px"] == 0.0  # the true backbone starts outside the views
+    # The true backbone from where it is 40 px inside the side view's border (and further in the top's).
+    uv, _ = rig["side"].project(rendered.truth)
+    late = rendered.truth[np.argmax(uv[:, 0] >= 40.0):]
+    sc = check_backbone(model, images, late, rendered.radii)
+    assert not sc.ok
+    assert sc.figures["top"]["start_gap_px"] > 2 * lim
+
+
+def test_a_backbone_that_starts_in_front_of_a_base_in_view_is_flagged(model, rendered):
+    # The base is in both views: a backbone starting 5 mm out from it (about 45 footprints).
+    start = np.argmax(rendered.s_mm >= 5.0)
+    sc = _check(model, rendered, rendered.truth[start:])
+    assert not sc.ok
+    assert sc.figures["side"]["start_gap_px"] > 3 * SelfCheckParams().max_start_gap_px
+    assert _check(model, rendered, rendered.truth).figures["side"]["start_gap_px"] < 1.0
