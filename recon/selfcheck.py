@@ -147,7 +147,8 @@ class SelfCheckParams:
         ``max_beyond_tip_contrast`` in any view the tube goes on: the backbone
         is short (a faint inner tube that the foreground does not show). The
         start (8 px) is the unexplained length's limit: a tip 8 footprints
-        short is still good.
+        short is still good; it moves out by how far the tube's flat end face
+        reaches beyond the tip, ``r_out |t . ray|`` px (a tube seen end on).
     max_tip_off_foreground_px : float
         Limit of the length (px) of the judged curve's end with no foreground
         (nor contrast support) on it: a backbone that runs on beyond the tip
@@ -679,10 +680,10 @@ def _running_median(x: np.ndarray, win: int) -> np.ndarray:
 
 
 def _beyond_tip(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv_curve: np.ndarray, r_out_tip: float,
-                r_in_tip: float, params: SelfCheckParams) -> float | None:
+                r_in_tip: float, params: SelfCheckParams, end_face_px: float = 0.0) -> float | None:
     """Tube contrast on the backbone's continuation beyond its reprojected tip, over what would flag it (> 1: the tube goes on).
 
-    Samples every px from ``explain_tolerance_px + 1`` to that plus
+    Samples every px from ``tip_probe_start_px + end_face_px`` to that plus
     ``tip_probe_px`` beyond the tip along the tip's tangent (taken over the
     last ``2 r_out`` px); their mean difference from the background across
     the middle against beside (:func:`_contrast_profiles`): ``mean_centre /
@@ -700,7 +701,8 @@ def _beyond_tip(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv_curve:
     if nd < 1e-6:
         return None
     d = d / nd
-    dist = np.arange(params.tip_probe_start_px, params.tip_probe_start_px + params.tip_probe_px + 1e-9, 1.0)
+    start = params.tip_probe_start_px + end_face_px
+    dist = np.arange(start, start + params.tip_probe_px + 1e-9, 1.0)
     pts = tip[None, :] + dist[:, None] * d[None, :]
     h, w = gray.shape
     inside = (pts[:, 0] >= 0) & (pts[:, 0] <= w - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)
@@ -714,6 +716,23 @@ def _beyond_tip(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv_curve:
     if ok.sum() < 0.5 * len(dist):
         return None
     return float(np.mean(centre[ok]) / max(params.contrast_min, params.tip_probe_ratio * float(np.mean(beside[ok]))))
+
+
+def _end_face_share(camera, points_world_mm: np.ndarray, chord_mm: float) -> float:
+    """How far the tube's end face reaches beyond the reprojected tip, in tube radii: ``|t . ray|`` (0-1).
+
+    The flat end face of a tube is a disk across its tangent ``t`` (over the last
+    ``chord_mm``); seen along the viewing ray to the tip it projects to an ellipse
+    whose half-extent along the projected tangent is the radius times ``|t . ray|``:
+    none for a tube across the view, the whole radius for one pointing at the
+    camera (wide-2-14 frame 2, side view: a 17 px radius, the end face 15 px beyond
+    the tip, where the probe starting 8 px out read the face as tube going on).
+    """
+    s = arc_length(points_world_mm)
+    p = camera.world_to_camera(np.stack([points_at_arc_length(points_world_mm, [max(0.0, s[-1] - chord_mm)])[0], points_world_mm[-1]]))
+    t, ray = p[1] - p[0], p[1]
+    nt, nr = float(np.linalg.norm(t)), float(np.linalg.norm(ray))
+    return abs(float(t @ ray)) / (nt * nr) if nt > 1e-9 and nr > 1e-9 else 0.0
 
 
 def _unseen_share(camera, others: list, ys: np.ndarray, xs: np.ndarray, uv_bb: np.ndarray, depth_bb: np.ndarray,
@@ -935,7 +954,9 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     beyond = None
     if params.tip_probe_px > 0 and not view.binary and vis[np.flatnonzero(finite)[-1]]:
         # The tip itself is in view (not behind the base): does the tube go on beyond it?
-        beyond = _beyond_tip(view, gray, gain_offset, uv[finite], float(r_out[finite][-1]), float(r_in[finite][-1]), params)
+        r_tip = float(r_out[finite][-1])
+        beyond = _beyond_tip(view, gray, gain_offset, uv[finite], r_tip, float(r_in[finite][-1]), params,
+                             r_tip * _end_face_share(camera, points_world_mm, 2.0 * radii_mm[0]))
     if _DEBUG is not None:
         _DEBUG[camera.name].update(on=on, gain_offset=gain_offset)
     # (c) centerline offset across the tube, on every third sample (the RMS needs no more).

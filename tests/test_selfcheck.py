@@ -395,3 +395,21 @@ def test_a_backbone_that_starts_in_front_of_a_base_in_view_is_flagged(model, ren
     assert not sc.ok
     assert sc.figures["side"]["start_gap_px"] > 3 * SelfCheckParams().max_start_gap_px
     assert _check(model, rendered, rendered.truth).figures["side"]["start_gap_px"] < 1.0
+
+
+def test_the_tip_probe_starts_beyond_the_end_face_of_a_tube_seen_end_on(rendered):
+    # A tube's flat end face reaches r |t . ray| px beyond its reprojected tip: none across the
+    # view, the whole radius pointing at the camera (wide-2-14 frame 2: a 17 px radius, the face
+    # read as tube going on by a probe that started 8 px out).
+    from recon.selfcheck import _end_face_share
+
+    side = rendered.rig["side"]
+    tip = rendered.truth[-1]
+    ray = tip - side.center_world_mm
+    ray /= np.linalg.norm(ray)
+    across = np.cross(ray, [0.0, 0.0, 1.0])
+    across /= np.linalg.norm(across)
+    assert _end_face_share(side, tip - np.outer(np.linspace(3.0, 0.0, 7), ray), 2.0) == pytest.approx(1.0, abs=1e-6)
+    assert _end_face_share(side, tip - np.outer(np.linspace(3.0, 0.0, 7), across), 2.0) == pytest.approx(0.0, abs=1e-6)
+    half = (ray + across) / np.linalg.norm(ray + across)
+    assert _end_face_share(side, tip - np.outer(np.linspace(3.0, 0.0, 7), half), 2.0) == pytest.approx(np.sqrt(0.5), abs=1e-6)
