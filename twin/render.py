@@ -620,14 +620,10 @@ class SetRenderer:
 
     def _downsample(self, image: np.ndarray, size: tuple) -> np.ndarray:
         """Average a supersampled viewport down to ``size`` (width, height) canvas px (area filter)."""
-        if self.supersample == 1:
-            return image
         return cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
     def _downsample_depth(self, z: np.ndarray, size: tuple) -> np.ndarray:
         """Depth of a supersampled viewport at ``size`` canvas px: the first sample of each pixel (no mixing of depths)."""
-        if self.supersample == 1:
-            return z
         return cv2.resize(z, size, interpolation=cv2.INTER_NEAREST)
 
     def _truth_pass(self, m1, m2, set_depth: np.ndarray, size: tuple) -> tuple:
