@@ -42,7 +42,7 @@ from .geometry import arc_length, points_at_arc_length, transform_points
 from .paper import behind_base_pixels
 from .rigcal import RigCalibration
 
-__all__ = ["SelfCheckParams", "SelfCheckModel", "SelfCheck", "prepare_selfcheck", "check_backbone",
+__all__ = ["SelfCheckParams", "SelfCheckModel", "SelfCheck", "FIGURE_LIMITS", "prepare_selfcheck", "check_backbone",
            "foreground_roi", "fit_gain_offset"]
 
 
@@ -1056,36 +1056,34 @@ def _start_gap_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
     return float(np.linalg.norm(first[0] - base) / fp) if np.isfinite(fp) and fp > 0 else 0.0
 
 
+#: Each figure and the :class:`SelfCheckParams` limit it is judged against (figure > limit: the frame is
+#: suspect), with the reason it then gives (``cam``, the figure ``x`` and the limit ``lim``).
+FIGURE_LIMITS = {
+    "off_foreground_fraction": ("max_off_foreground_fraction",
+                                "{cam}: {pct:.0f} % of the reprojected tube is not on foreground (limit {pct_lim:.0f} %)"),
+    "unexplained_fraction": ("max_unexplained_fraction",
+                             "{cam}: {pct:.0f} % of the foreground along the robot is not explained by the backbone (limit {pct_lim:.0f} %)"),
+    "unexplained_px": ("max_unexplained_px", "{cam}: {x:.0f} px of tube along the robot are not explained by the backbone (limit {lim:.0f} px)"),
+    "tip_off_foreground_px": ("max_tip_off_foreground_px", "{cam}: the reprojected tube's last {x:.0f} px are not on foreground (limit {lim:.0f} px)"),
+    "behind_base_px": ("max_behind_base_px", "the backbone reaches {x:.0f} px (pixel footprints) behind the robot base (limit {lim:.0f} px)"),
+    "kink_px": ("max_kink_px", "the backbone bends {x:.0f} px (pixel footprints) more sharply than a tube can (limit {lim:.0f} px)"),
+    "start_gap_px": ("max_start_gap_px",
+                     "the backbone starts {x:.0f} px in from where the robot enters the views (limit {lim:.0f} px): the robot before it is missing"),
+    "beyond_tip_contrast": ("max_beyond_tip_contrast", "{cam}: the tube goes on beyond the reprojected tip (contrast {x:.1f}, limit {lim:.1f})"),
+    "centerline_rms_px": ("max_centerline_rms_px", "{cam}: the reprojected centerline is {x:.1f} px RMS off the tube's middle (limit {lim:.1f} px)"),
+    "centerline_max_px": ("max_centerline_local_px",
+                          "{cam}: the reprojected centerline leaves the tube's middle by {x:.1f} px over a stretch (limit {lim:.1f} px)"),
+}
+
+
 def _verdict(figures: dict, params: SelfCheckParams) -> str | None:
     """The reason of the figure furthest beyond its limit (one line), or None."""
     worst, reason = 1.0, None
     for cam, f in figures.items():
-        checks = (
-            ("off_foreground_fraction", params.max_off_foreground_fraction,
-             lambda x, lim: f"{cam}: {100 * x:.0f} % of the reprojected tube is not on foreground (limit {100 * lim:.0f} %)"),
-            ("unexplained_fraction", params.max_unexplained_fraction,
-             lambda x, lim: f"{cam}: {100 * x:.0f} % of the foreground along the robot is not explained by the backbone (limit {100 * lim:.0f} %)"),
-            ("unexplained_px", params.max_unexplained_px,
-             lambda x, lim: f"{cam}: {x:.0f} px of tube along the robot are not explained by the backbone (limit {lim:.0f} px)"),
-            ("tip_off_foreground_px", params.max_tip_off_foreground_px,
-             lambda x, lim: f"{cam}: the reprojected tube's last {x:.0f} px are not on foreground (limit {lim:.0f} px)"),
-            ("behind_base_px", params.max_behind_base_px,
-             lambda x, lim: f"the backbone reaches {x:.0f} px (pixel footprints) behind the robot base (limit {lim:.0f} px)"),
-            ("kink_px", params.max_kink_px,
-             lambda x, lim: f"the backbone bends {x:.0f} px (pixel footprints) more sharply than a tube can (limit {lim:.0f} px)"),
-            ("start_gap_px", params.max_start_gap_px,
-             lambda x, lim: f"the backbone starts {x:.0f} px in from where the robot enters the views (limit {lim:.0f} px): the robot before it is missing"),
-            ("beyond_tip_contrast", params.max_beyond_tip_contrast,
-             lambda x, lim: f"{cam}: the tube goes on beyond the reprojected tip (contrast {x:.1f}, limit {lim:.1f})"),
-            ("centerline_rms_px", params.max_centerline_rms_px,
-             lambda x, lim: f"{cam}: the reprojected centerline is {x:.1f} px RMS off the tube's middle (limit {lim:.1f} px)"),
-            ("centerline_max_px", params.max_centerline_local_px,
-             lambda x, lim: f"{cam}: the reprojected centerline leaves the tube's middle by {x:.1f} px over a stretch (limit {lim:.1f} px)"),
-        )
-        for key, lim, text in checks:
-            x = f.get(key)
+        for key, (limit, text) in FIGURE_LIMITS.items():
+            x, lim = f.get(key), getattr(params, limit)
             if x is not None and x / lim > worst:
-                worst, reason = x / lim, text(x, lim)
+                worst, reason = x / lim, text.format(cam=cam, x=x, lim=lim, pct=100 * x, pct_lim=100 * lim)
     return reason
 
 

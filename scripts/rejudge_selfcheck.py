@@ -21,14 +21,11 @@ import json
 from dataclasses import fields
 from pathlib import Path
 
-from recon.selfcheck import SelfCheckParams
+from recon.selfcheck import FIGURE_LIMITS, SelfCheckParams
 from rig.bench.widebench import SILENT_WRONG_PX
 
-#: Figure -> the limit it is judged against (SelfCheckParams field).
-LIMITS = {"off_foreground_fraction": "max_off_foreground_fraction", "unexplained_fraction": "max_unexplained_fraction",
-          "unexplained_px": "max_unexplained_px", "tip_off_foreground_px": "max_tip_off_foreground_px",
-          "behind_base_px": "max_behind_base_px", "beyond_tip_contrast": "max_beyond_tip_contrast",
-          "centerline_rms_px": "max_centerline_rms_px", "centerline_max_px": "max_centerline_local_px"}
+#: Figure -> the limit it is judged against (SelfCheckParams field), as the self-check judges it.
+LIMITS = {figure: limit for figure, (limit, _) in FIGURE_LIMITS.items()}
 #: Limits that are pure thresholds (searchable offline).
 SEARCHED = tuple(v for v in LIMITS.values() if v != "max_unexplained_px")
 
