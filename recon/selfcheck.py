@@ -24,6 +24,10 @@ that shares nothing with the method's silhouette:
   ``centerline_rms_px``, the RMS distance between the reprojected centerline
   and the middle of the foreground cross-section across it (a backbone that
   is offset in one view).
+* **Shape figures**, from the backbone and the rig alone, which no view's
+  foreground judges: a point behind the base plane (``behind_base_px``), a bend
+  sharper than the innermost tube can take (``kink_px``), and a start away
+  from where the robot enters the views (``start_gap_px``).
 
 Everything runs in a region of interest around the reprojection, grown only
 while the robot's foreground reaches its edge. Method and thresholds:
