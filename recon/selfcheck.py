@@ -884,6 +884,48 @@ def _unseen_share_of(camera, others, ys: np.ndarray, xs: np.ndarray, uvv: np.nda
     return _unseen_share(camera, list(others), ys, xs, uv_g, depth_g, params)
 
 
+def _tip_figures(view: _ViewModel, camera, gray: np.ndarray, gain_offset: list, uv: np.ndarray, finite: np.ndarray,
+                 vis: np.ndarray, on: np.ndarray, on_fg: np.ndarray, r_out: np.ndarray, r_in: np.ndarray,
+                 points_world_mm: np.ndarray, radii_mm: tuple, params: SelfCheckParams) -> tuple:
+    """``(tip_off_foreground_px, beyond_tip_contrast)`` of one view, each None where not measured.
+
+    ``uv`` the dense reprojection, ``finite`` and ``vis`` its finite and judged samples,
+    ``on`` / ``on_fg`` per judged sample: supported (foreground or contrast) / on foreground,
+    ``r_out`` / ``r_in`` the radii (px) per dense sample.
+    """
+    # The end of the judged curve with nothing on it: a backbone that runs on beyond the tip
+    # (the share above hides a 20 px overrun of a long robot). Only where the foreground shows
+    # the tube just before (at least half of the 2 r_out px, >= 5 px): where it does not, the
+    # tube is too faint to tell where it ends from the foreground (the tip probe's case).
+    n_tail = int(np.argmax(on[::-1])) if on.any() else on.size
+    n_pre = max(5, int(math.ceil(2.0 * float(r_out[vis][-1]) / params.sample_step_px)))
+    pre = on_fg[max(0, on.size - n_tail - n_pre):on.size - n_tail]
+    tip_off = n_tail * params.sample_step_px if pre.size and pre.mean() >= 0.5 else None
+    beyond = None
+    if params.tip_probe_px > 0 and not view.binary and vis[np.flatnonzero(finite)[-1]]:
+        # The tip itself is in view (not behind the base): does the tube go on beyond it?
+        r_tip = float(r_out[finite][-1])
+        beyond = _beyond_tip(view, gray, gain_offset, uv[finite], r_tip, float(r_in[finite][-1]), params,
+                             r_tip * _end_face_share(camera, points_world_mm, 2.0 * radii_mm[0]))
+    return tip_off, beyond
+
+
+def _centerline_figures(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_out_px: np.ndarray, r_in_px: np.ndarray,
+                        params: SelfCheckParams) -> tuple:
+    """``(centerline_rms_px, centerline_max_px)`` of one view's judged samples (region coordinates), None where too few clean sections."""
+    # (c) centerline offset across the tube, on every third sample (the RMS needs no more).
+    sub = slice(None, None, 3)
+    offs = _profile_offsets(fg, uv_roi[sub], normals[sub], r_out_px[sub], r_in_px[sub], params)
+    good = np.isfinite(offs)
+    enough = good.sum() >= max(10.0, params.min_profile_fraction * offs.size)
+    rms = float(np.sqrt(np.mean(offs[good] ** 2))) if enough else None
+    # (c') the largest offset over a stretch: a bump where the method's centerline left the tube for
+    # a few tube widths hardly moves the RMS of a long robot.
+    win = max(1, int(round(params.centerline_window_px / (3 * params.sample_step_px))))
+    local = float(np.max(np.abs(_running_median(offs[good], win)))) if enough and good.sum() >= win else None
+    return rms, local
+
+
 def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.ndarray, radii_mm: tuple,
                 params: SelfCheckParams, others: list = (), base_world_mm=None) -> dict:
     """The three figures of one view (None where not measured).
@@ -895,8 +937,7 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     method leaves out because only this view sees it.
     """
     none = {"unexplained_fraction": None, "unexplained_px": None, "off_foreground_fraction": None, "centerline_rms_px": None, "centerline_max_px": None,
-            "visible_px": 0.0, "unseen_px": None, "beyond_tip_contrast": None, "tip_off_foreground_px": None,
-            "behind_base_px": None, "kink_px": None, "start_gap_px": None}
+            "visible_px": 0.0, "unseen_px": None, "beyond_tip_contrast": None, "tip_off_foreground_px": None}
 
     uv, depth = _dense_projection(camera, points_world_mm, params.sample_step_px)
     finite = np.all(np.isfinite(uv), axis=1) & (depth > 1e-6)
@@ -947,35 +988,14 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     if params.contrast_window_px > 0 and not view.binary and not on.all():
         on = on | _contrast_support(view, gray, gain_offset, uvv, normals, r_out[vis], r_in[vis], params)
     off = float(np.mean(~on))
-    # The end of the judged curve with nothing on it: a backbone that runs on beyond the tip
-    # (the share above hides a 20 px overrun of a long robot). Only where the foreground shows
-    # the tube just before (at least half of the 2 r_out px, >= 5 px): where it does not, the
-    # tube is too faint to tell where it ends from the foreground (the tip probe's case).
-    n_tail = int(np.argmax(on[::-1])) if on.any() else on.size
-    n_pre = max(5, int(math.ceil(2.0 * float(r_out[vis][-1]) / params.sample_step_px)))
-    pre = on_fg[max(0, on.size - n_tail - n_pre):on.size - n_tail]
-    tip_off = n_tail * params.sample_step_px if pre.size and pre.mean() >= 0.5 else None
-    beyond = None
-    if params.tip_probe_px > 0 and not view.binary and vis[np.flatnonzero(finite)[-1]]:
-        # The tip itself is in view (not behind the base): does the tube go on beyond it?
-        r_tip = float(r_out[finite][-1])
-        beyond = _beyond_tip(view, gray, gain_offset, uv[finite], r_tip, float(r_in[finite][-1]), params,
-                             r_tip * _end_face_share(camera, points_world_mm, 2.0 * radii_mm[0]))
+    tip_off, beyond = _tip_figures(view, camera, gray, gain_offset, uv, finite, vis, on, on_fg, r_out, r_in, points_world_mm,
+                                   radii_mm, params)
     if _DEBUG is not None:
         _DEBUG[camera.name].update(on=on, gain_offset=gain_offset)
-    # (c) centerline offset across the tube, on every third sample (the RMS needs no more).
-    sub = slice(None, None, 3)
-    offs = _profile_offsets(fg, uvr[sub], normals[sub], r_out[vis][sub], r_in[vis][sub], params)
-    good = np.isfinite(offs)
-    enough = good.sum() >= max(10.0, params.min_profile_fraction * offs.size)
-    rms = float(np.sqrt(np.mean(offs[good] ** 2))) if enough else None
-    # (c') the largest offset over a stretch: a bump where the method's centerline left the tube for
-    # a few tube widths hardly moves the RMS of a long robot.
-    win = max(1, int(round(params.centerline_window_px / (3 * params.sample_step_px))))
-    local = float(np.max(np.abs(_running_median(offs[good], win)))) if enough and good.sum() >= win else None
+    rms, local = _centerline_figures(fg, uvr, normals, r_out[vis], r_in[vis], params)
     return {"unexplained_fraction": unexplained, "unexplained_px": unexplained_px, "off_foreground_fraction": off,
             "centerline_rms_px": rms, "centerline_max_px": local, "visible_px": none["visible_px"], "unseen_px": unseen_px, "beyond_tip_contrast": beyond,
-            "tip_off_foreground_px": tip_off, "behind_base_px": None, "kink_px": None, "start_gap_px": None}
+            "tip_off_foreground_px": tip_off}
 
 
 def _footprints_mm(rig: RigCalibration, points_world_mm: np.ndarray) -> np.ndarray:
