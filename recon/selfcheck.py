@@ -171,8 +171,8 @@ class SelfCheckParams:
         back reprojects mostly onto foreground (wide-1-14 frame 1 of the paper
         method: a 23-footprint V in the top view, reported ok). A tube cannot
         bend that sharply: past its material's strain limit it kinks or yields
-        (superelastic Nitinol recovers about 8 %; ``max_strain`` 0.1 allows
-        more). The *kink* figure is the largest sagitta of the backbone over a
+        (superelastic Nitinol recovers about 8 %, the default ``max_strain``).
+        The *kink* figure is the largest sagitta of the backbone over a
         chord ``kink_chord_mm`` either side of a point, less the sagitta of an
         arc of the tightest curvature the innermost tube allows,
         ``max_strain / r_in`` (``kappa * L**2 / 2``), in pixel footprints
@@ -187,7 +187,9 @@ class SelfCheckParams:
         further in left out the robot between (wide-1-63 frame 0 of the paper
         method: the tube's first 60 px in the top view, which the band did not
         touch). Both methods continue their backbones to the border and to the
-        base plane; 10 px, as the error that makes a frame wrong.
+        base plane, so the figure is about the start's error itself; 12 px
+        keeps a margin over good frames just within the 10 footprints that
+        make a frame wrong (seed 2: good frames up to 9.9).
     """
 
     jitter_window_px: int = 1
