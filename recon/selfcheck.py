@@ -27,7 +27,8 @@ that shares nothing with the method's silhouette:
 * **Shape figures**, from the backbone and the rig alone, which no view's
   foreground judges: a point behind the base plane (``behind_base_px``), a bend
   sharper than the innermost tube can take (``kink_px``), and a start away
-  from where the robot enters the views (``start_gap_px``).
+  from where the robot enters the views (``start_gap_px``), a long stretch
+  whose depth the views do not measure (``unmeasured_depth_mm``).
 
 Everything runs in a region of interest around the reprojection, grown only
 while the robot's foreground reaches its edge. Method and thresholds:
@@ -42,7 +43,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from .geometry import arc_length, points_at_arc_length, transform_points
+from .geometry import arc_length, points_at_arc_length, resample_polyline, transform_points
 from .paper import behind_base_pixels
 from .rigcal import RigCalibration
 
@@ -190,6 +191,26 @@ class SelfCheckParams:
         base plane, so the figure is about the start's error itself; 12 px
         keeps a margin over good frames just within the 10 footprints that
         make a frame wrong (seed 2: good frames up to 9.9).
+    min_depth_visibility, max_unmeasured_depth_mm
+        Where the tube runs near an epipolar plane the two views do not measure
+        its depth: a displacement across it moves both reprojections along the
+        tube, and every view figure passes whatever shape the method put there
+        (wide-1-57 frame 0 of the fast method: 41 footprints off over a 54 mm
+        stretch, flagged before only by a lighting misfit). Per point of the
+        backbone (every mm), the *depth visibility* is the reprojection shift
+        across the tube (px, the views in quadrature) of a displacement of one
+        pixel footprint in the least visible direction across the tangent;
+        under ``min_depth_visibility`` (0.3: a 10-footprint error shows as under
+        3 px, inside the tolerances) the depth there is not measured. Neither
+        the backbone nor the smoothest curve the views allow could be told from
+        the truth there (docs/envelope.md, round 10), so a stretch longer than
+        ``max_unmeasured_depth_mm`` between measured points is flagged: 20 mm,
+        over which a bend of 1/50 mm^-1 (a CTR tube's precurvature) hides a
+        1 mm sagitta, 10 footprints at 0.1 mm per px. Wide seed 2: one good
+        frame of 206 reads more (wide-2-41 fast frame 0, 69 mm); seed 1: the
+        wrong frames wide-1-24 fast 2 and wide-1-57 fast 0 read 68 and 55 mm.
+        Stretches that reach an end of the backbone are left to the tip and
+        start figures.
     """
 
     jitter_window_px: int = 1
@@ -228,6 +249,8 @@ class SelfCheckParams:
     max_strain: float = 0.08
     max_kink_px: float = 5.0
     max_start_gap_px: float = 12.0
+    min_depth_visibility: float = 0.3
+    max_unmeasured_depth_mm: float = 20.0
 
     def __post_init__(self):
         if int(self.jitter_window_px) != self.jitter_window_px or self.jitter_window_px < 0:
@@ -237,7 +260,7 @@ class SelfCheckParams:
             if not getattr(self, name) >= 0:
                 raise ValueError(f"SelfCheckParams: {name} must be >= 0")
         for name in ("sample_step_px", "max_unexplained_fraction", "max_unexplained_px", "max_off_foreground_fraction", "max_centerline_rms_px",
-                     "kink_chord_mm", "max_strain", "max_kink_px", "max_start_gap_px"):
+                     "kink_chord_mm", "max_strain", "max_kink_px", "max_start_gap_px", "max_unmeasured_depth_mm"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"SelfCheckParams: {name} must be > 0")
 
@@ -284,9 +307,9 @@ class SelfCheck:
         Camera name -> ``{"unexplained_fraction", "unexplained_px",
         "off_foreground_fraction", "tip_off_foreground_px", "centerline_rms_px",
         "centerline_max_px", "beyond_tip_contrast", "behind_base_px", "kink_px", "start_gap_px",
-        "visible_px", "unseen_px"}`` (None where not measured: view not judged, no clean
-        cross-section for the RMS, ...). ``behind_base_px``, ``kink_px`` and ``start_gap_px``
-        are the backbone's, the same in every view.
+        "unmeasured_depth_mm", "visible_px", "unseen_px"}`` (None where not measured: view not
+        judged, no clean cross-section for the RMS, ...). ``behind_base_px``, ``kink_px``,
+        ``start_gap_px`` and ``unmeasured_depth_mm`` are the backbone's, the same in every view.
     ms : float
         Wall time of the check (ms).
     """
@@ -1055,6 +1078,50 @@ def _kink_px(rig: RigCalibration, points_world_mm: np.ndarray, r_in_mm: float, p
     return float(max(0.0, excess_px.max())) if excess_px.size else 0.0
 
 
+def _depth_visibility(rig: RigCalibration, points_world_mm: np.ndarray, h_mm: float = 1e-3) -> np.ndarray:
+    """Per point (n,): px of reprojection shift across the tube, over the views in quadrature, per footprint of displacement
+    in the least visible direction across the tangent (``SelfCheckParams.min_depth_visibility``)."""
+    p = np.asarray(points_world_mm, np.float64)
+    t = np.gradient(p, axis=0)
+    t /= np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
+    helper = np.where(np.abs(t[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    e1 = np.cross(t, helper)
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(t, e1)
+    M = np.zeros((len(p), 2, 2))
+    for name in rig.names:
+        cam = rig[name]
+        J = np.stack([(cam.project(p + h_mm * d)[0] - cam.project(p - h_mm * d)[0]) / (2 * h_mm) for d in np.eye(3)], axis=2)  # (n, 2, 3) px/mm
+        u = np.einsum("nij,nj->ni", J, t)
+        nrm = np.stack([-u[:, 1], u[:, 0]], axis=1) / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
+        g = np.einsum("nij,ni->nj", J, nrm)  # px per mm of displacement, across the tube in this view
+        ge = np.stack([np.sum(g * e1, axis=1), np.sum(g * e2, axis=1)], axis=1)
+        M += ge[:, :, None] * ge[:, None, :]
+    M = np.nan_to_num(M)
+    a, b, c = M[:, 0, 0], M[:, 0, 1], M[:, 1, 1]
+    lam = 0.5 * (a + c) - np.sqrt(0.25 * (a - c) ** 2 + b * b)
+    return np.sqrt(np.maximum(lam, 0.0)) * np.nan_to_num(_footprints_mm(rig, p))
+
+
+def _unmeasured_depth_mm(rig: RigCalibration, points_world_mm: np.ndarray, params: SelfCheckParams) -> float:
+    """The longest stretch (mm) of the backbone, between two points whose depth the views measure, whose depth they do not.
+
+    The backbone is resampled every mm; a point's depth is unmeasured where its
+    :func:`_depth_visibility` is under ``min_depth_visibility``. Stretches that
+    reach an end of the backbone are left to the tip and start figures. 0 when
+    there is none.
+    """
+    pts = resample_polyline(np.asarray(points_world_mm, np.float64), 1.0)
+    if len(pts) < 3:
+        return 0.0
+    low = _depth_visibility(rig, pts) < params.min_depth_visibility
+    # Runs of unmeasured points: starts where low rises, ends where it falls (a run touching an end does not count).
+    edges = np.diff(np.concatenate([[0], low.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    inner = (starts > 0) & (ends < len(pts))
+    return float(np.max(ends[inner] - starts[inner] + 1)) if inner.any() else 0.0
+
+
 def _start_gap_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
     """How far in from where the robot must enter the backbone starts (px; see ``SelfCheckParams.max_start_gap_px``).
 
@@ -1095,6 +1162,8 @@ FIGURE_LIMITS = {
     "kink_px": ("max_kink_px", "the backbone bends {x:.0f} px (pixel footprints) more sharply than a tube can (limit {lim:.0f} px)"),
     "start_gap_px": ("max_start_gap_px",
                      "the backbone starts {x:.0f} px in from where the robot enters the views (limit {lim:.0f} px): the robot before it is missing"),
+    "unmeasured_depth_mm": ("max_unmeasured_depth_mm",
+                            "over {x:.0f} mm the tube runs near an epipolar plane: the views do not measure its depth there (limit {lim:.0f} mm)"),
     "beyond_tip_contrast": ("max_beyond_tip_contrast", "{cam}: the tube goes on beyond the reprojected tip (contrast {x:.1f}, limit {lim:.1f})"),
     "centerline_rms_px": ("max_centerline_rms_px", "{cam}: the reprojected centerline is {x:.1f} px RMS off the tube's middle (limit {lim:.1f} px)"),
     "centerline_max_px": ("max_centerline_local_px",
@@ -1163,7 +1232,7 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
         others = [model.rig[o] for o in model.rig.names if o != name]
         figures[name] = _judge_view(view, cam, gray, pts, (r_out, r_in), params, others, model.rig.base_point_world_mm)
     shape = {"behind_base_px": _behind_base_px(model.rig, pts), "kink_px": _kink_px(model.rig, pts, r_in, params),
-             "start_gap_px": _start_gap_px(model.rig, pts)}
+             "start_gap_px": _start_gap_px(model.rig, pts), "unmeasured_depth_mm": _unmeasured_depth_mm(model.rig, pts, params)}
     for f in figures.values():
         f.update(shape)
     reason = _verdict(figures, params)

@@ -413,3 +413,38 @@ def test_the_tip_probe_starts_beyond_the_end_face_of_a_tube_seen_end_on(rendered
     assert _end_face_share(side, tip - np.outer(np.linspace(3.0, 0.0, 7), across), 2.0) == pytest.approx(0.0, abs=1e-6)
     half = (ray + across) / np.linalg.norm(ray + across)
     assert _end_face_share(side, tip - np.outer(np.linspace(3.0, 0.0, 7), half), 2.0) == pytest.approx(np.sqrt(0.5), abs=1e-6)
+
+
+def _stereo_rig_along_x():
+    """Two cameras 300 mm apart along world x, both looking at the origin from 260 mm: the epipolar planes hold the x axis."""
+    from recon.geometry import look_at
+
+    K = np.array([[2000.0, 0.0, 512.0], [0.0, 2000.0, 384.0], [0.0, 0.0, 1.0]])
+    cams = {n: Camera(n, 1024, 768, K, np.zeros(5), look_at(np.array([x, 0.0, -260.0]), np.zeros(3), np.array([0.0, 1.0, 0.0])))
+            for n, x in (("a", -150.0), ("b", 150.0))}
+    return RigCalibration(cams, np.array([-60.0, 30.0, -30.0]), np.array([1.0, 0.0, 0.0]))
+
+
+def test_a_stretch_whose_depth_no_view_measures_is_flagged():
+    # wide-1-57 frame 0 (fast): over 54 mm the tube ran near an epipolar plane; both reprojections
+    # lay on the tube while the depth was 41 footprints off. A tube along x, 30 mm off the baseline,
+    # lies in the epipolar plane through it: with its ends bent out of that plane (measured), the
+    # 40 mm between are not measured by either view.
+    from recon.selfcheck import _depth_visibility, _unmeasured_depth_mm
+
+    rig = _stereo_rig_along_x()
+    s = np.arange(-40.0, 40.01, 0.5)
+    z = np.where(np.abs(s) > 20, -2.0 * (np.abs(s) - 20.0), 0.0)  # 63 deg out of the plane z = 0 beyond |s| = 20
+    along = np.stack([s, np.full_like(s, 30.0), z], axis=1)
+    vis = _depth_visibility(rig, along)
+    assert vis[np.abs(s) < 15].max() < 0.05 and vis[np.abs(s) > 25].min() > 0.3
+    lim = SelfCheckParams().max_unmeasured_depth_mm
+    assert 35.0 <= _unmeasured_depth_mm(rig, along, SelfCheckParams()) <= 45.0 > lim
+    # The same tube turned across the baseline (along y) is measured all along.
+    across = np.stack([np.zeros_like(s), s, np.zeros_like(s)], axis=1)
+    assert _unmeasured_depth_mm(rig, across, SelfCheckParams()) == 0.0
+    # The verdict says why.
+    from recon.selfcheck import FIGURE_LIMITS, _verdict
+
+    assert "near an epipolar plane" in _verdict({"a": {"unmeasured_depth_mm": 40.0}}, SelfCheckParams())
+    assert "unmeasured_depth_mm" in FIGURE_LIMITS
