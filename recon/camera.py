@@ -229,6 +229,32 @@ class Camera:
         xy[z <= 1e-9] = np.nan
         return self.normalized_to_pixels(distort_normalized(xy, self.dist)), z
 
+    def project_jacobian(self, points_world_mm, h_mm: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+        """Projections of world points and their Jacobians, by central differences of :meth:`project`.
+
+        Parameters
+        ----------
+        points_world_mm : (n, 3) array
+            World points (mm).
+        h_mm : float, optional
+            Half the difference step (mm).
+
+        Returns
+        -------
+        uv : (n, 2) array
+            Pixel coordinates (px), as :meth:`project`.
+        J : (n, 2, 3) array
+            d(uv) / d(point), px per mm of world displacement; NaN where a point is at or behind the camera.
+        """
+        p = _as_points(points_world_mm, 3, "points_world_mm")
+        uv = self.project(p)[0]
+        J = np.empty((len(p), 2, 3))
+        for k in range(3):
+            e = np.zeros(3)
+            e[k] = h_mm
+            J[:, :, k] = (self.project(p + e)[0] - self.project(p - e)[0]) / (2.0 * h_mm)
+        return uv, J
+
     def normalized_to_pixels(self, xy: np.ndarray) -> np.ndarray:
         """Distorted normalized coordinates -> pixels.
 

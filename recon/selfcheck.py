@@ -1091,7 +1091,7 @@ def _depth_visibility(rig: RigCalibration, points_world_mm: np.ndarray, h_mm: fl
     M = np.zeros((len(p), 2, 2))
     for name in rig.names:
         cam = rig[name]
-        J = np.stack([(cam.project(p + h_mm * d)[0] - cam.project(p - h_mm * d)[0]) / (2 * h_mm) for d in np.eye(3)], axis=2)  # (n, 2, 3) px/mm
+        J = cam.project_jacobian(p, h_mm)[1]  # (n, 2, 3) px per mm
         u = np.einsum("nij,nj->ni", J, t)
         nrm = np.stack([-u[:, 1], u[:, 0]], axis=1) / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
         g = np.einsum("nij,ni->nj", J, nrm)  # px per mm of displacement, across the tube in this view

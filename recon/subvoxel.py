@@ -103,17 +103,6 @@ def _tangents(points: np.ndarray) -> np.ndarray:
     return t / np.maximum(np.linalg.norm(t, axis=1, keepdims=True), 1e-12)
 
 
-def _jacobian(camera, points: np.ndarray, h_mm: float = 1e-3) -> tuple:
-    """Projections (n, 2) and their Jacobians (n, 2, 3) in px per mm (central differences)."""
-    uv = camera.project(points)[0]
-    J = np.empty((len(points), 2, 3))
-    for k in range(3):
-        e = np.zeros(3)
-        e[k] = h_mm
-        J[:, :, k] = (camera.project(points + e)[0] - camera.project(points - e)[0]) / (2.0 * h_mm)
-    return uv, J
-
-
 def _smooth(x: np.ndarray, passes: int) -> np.ndarray:
     for _ in range(passes):
         if len(x) < 3:
@@ -131,7 +120,7 @@ def _across_step(views: list, points: np.ndarray, voxel_mm: float, params: Subvo
     A = np.zeros((n, 3, 3))
     b = np.zeros((n, 3))
     for v in views:
-        uv, J = _jacobian(v.camera, points)
+        uv, J = v.camera.project_jacobian(points)
         d, foot = v.lookup(uv)
         t2 = np.einsum("nij,nj->ni", J, T)
         t2 /= np.maximum(np.linalg.norm(t2, axis=1, keepdims=True), 1e-12)
@@ -166,7 +155,7 @@ def _tip_reach_mm(view: _View, tip: np.ndarray, tangent: np.ndarray, max_mm: flo
     lies within ``on_px``; the end is the last pixel's position along the
     tangent.
     """
-    uv, J = _jacobian(view.camera, tip[None])
+    uv, J = view.camera.project_jacobian(tip[None])
     dir_px = J[0] @ tangent
     speed = float(np.linalg.norm(dir_px))  # px per mm along the tangent
     if not np.all(np.isfinite(uv)) or speed < 0.2:
