@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -104,9 +104,16 @@ class FastParams:
         silhouette ends lie in planes farther apart than this plus the inner
         tube's diameter (each view's silhouette ends at the rim of the end
         face it sees; px along the tube, in the view where that distance is
-        smaller) the frame is
-        refused (:func:`_tip_mismatch`): one view lost the tube short of its
-        tip (or ran on into something else) and the backbone would stop there.
+        smaller), after the second tries (``retry_min_dn``), the views are
+        cut to what both see (:func:`_tip_mismatch`): one view lost the tube
+        short of its tip, or the other ran on into something else, and the
+        backbone stops where the shorter view ends; the frame is ``suspect``
+        (``suspect_reason``), never ``ok``.
+    min_common_fraction : float
+        Such a cut is made only while the longer view keeps at least this
+        fraction of its curve (of its length in px); a view that lost the tube
+        earlier than that refuses the frame (:class:`~recon.errors.FrameError`):
+        a stub of the robot is no reconstruction of it.
     tip_triangulate_px : float
         Where continuing the backbone straight along its end tangent leaves
         one view's silhouette end more than this (px) off, the end is
@@ -134,6 +141,7 @@ class FastParams:
     max_base_gap_mm: float = 6.0
     retry_min_dn: float = 3.0
     max_tip_mismatch_px: float = 8.0
+    min_common_fraction: float = 0.5
     tip_triangulate_px: float = 3.0
     jump: JumpLimits = field(default_factory=JumpLimits)
 
@@ -639,15 +647,50 @@ def _short_view(model: FastModel, views: dict, sa_: _ViewSamples, sb_: _ViewSamp
     return n_short[0]
 
 
-def _check_tip_agreement(model: FastModel, views: dict, sa_: _ViewSamples, sb_: _ViewSamples, params: FastParams) -> None:
-    """Raise :class:`~recon.errors.FrameError` when the views' ends lie farther apart along the tube than
-    ``max_tip_mismatch_px`` plus a tube diameter (one view lost the tube before its tip, or followed something else)."""
+def _cut_at_angle(model: FastModel, name: str, vc: ViewCenterline, phi_tip: float, min_fraction: float):
+    """View ``name``'s centerline cut where its epipolar-plane angle first reaches ``phi_tip`` (rad: the other
+    view's tip), going from the base; None where it never does, or keeps less than ``min_fraction`` of the curve.
+
+    The tip lies in one epipolar plane, so where the other view's tube ends, this view's tube, as far as both
+    views see it, ends in the same plane."""
+    smp = _view_samples(model, name, vc, 1.0)
+    d = smp.phi - phi_tip
+    beyond = np.flatnonzero(np.sign(d) != np.sign(d[0]))
+    if d[0] == 0.0 or beyond.size == 0:
+        return None
+    i = int(beyond[0])
+    s_cut = float(smp.s[i - 1] + d[i - 1] / (d[i - 1] - d[i]) * (smp.s[i] - smp.s[i - 1]))
+    s0, s1 = vc.s_range
+    keep = vc.s <= s_cut
+    if (s_cut - s0) < min_fraction * (s1 - s0) or keep.sum() < 4:
+        return None
+    tangent = vc.curve.derivative()(np.array([s_cut]))[0]
+    return replace(vc, s_range=(s0, s_cut), points_px=vc.points_px[keep], s=vc.s[keep], width_px=vc.width_px[keep],
+                   end_px=vc.curve(np.array([s_cut]))[0], end_s=s_cut, tangent_end=tangent / np.linalg.norm(tangent))
+
+
+def _common_part(model: FastModel, views: dict, sa_: _ViewSamples, sb_: _ViewSamples, params: FastParams) -> tuple:
+    """The pair's samples cut to what both views see where their tips still disagree after the second tries:
+    ``(sa_, sb_, reason)``, ``views`` updated in place; reason None where the tips agree.
+
+    Raises :class:`~recon.errors.FrameError` when each view overshoots the other, or the longer one would keep
+    less than ``params.min_common_fraction`` of its curve."""
     n = _short_view(model, views, sa_, sb_, params)
-    if n is not None:
-        a, b = model.pair
-        short = _tip_mismatch(model, views, sa_, sb_)[n]
-        raise FrameError(f"the views disagree on the tip: {n}'s ends {short:.0f} px along the tube short of where "
-                         f"{b if n == a else a}'s tip puts it (one view lost the tube before its tip, or followed something else)")
+    if n is None:
+        return sa_, sb_, None
+    a, b = model.pair
+    other = b if n == a else a
+    short = _tip_mismatch(model, views, sa_, sb_)[n]
+    what = (f"the views disagree on the tip: {n}'s ends {short:.0f} px along the tube short of where {other}'s tip "
+            "puts it (one view lost the tube before its tip, or the other followed something else)")
+    end = views[n].end_px - views[n].shift_px
+    cut = _cut_at_angle(model, other, views[other], float(_phi_at(model, n, end[None])[0]), params.min_common_fraction)
+    if cut is None:
+        raise FrameError(what)
+    views[other] = cut
+    smp = _view_samples(model, other, cut, params.sample_step_px)
+    sa_, sb_ = (smp, sb_) if other == a else (sa_, smp)
+    return sa_, sb_, f"{what}: the backbone stops where both views see the tube"
 
 
 @dataclass(frozen=True)
@@ -740,24 +783,25 @@ class FastReconstructor:
         return (smp, samples[1]) if name == model.pair[0] else (samples[0], smp)
 
     def _agreeing(self, frames: dict, views: dict, sa_: _ViewSamples, sb_: _ViewSamples, n: str) -> tuple:
-        """The samples of a pair whose tips disagree (view ``n`` ends short), after second tries; raises when
-        they still disagree.
+        """The samples of a pair whose tips disagree (view ``n`` ends short), after second tries, and why the
+        method cannot vouch for the shape (None: the tips now agree): ``(sa_, sb_, reason)``.
 
         One view lost a faint stretch of tube before its tip: it is followed once more, more sensitively.
         If it still ends short, the other view may have bridged a gap onto backdrop beyond the tip: that
-        one is followed again without bridging. The tip check (and the self-check after it) judges.
+        one is followed again without bridging. Where they still disagree, both are cut to what both
+        see (:func:`_common_part`).
         """
         model, params = self.model, self.params
         a, b = model.pair
         sa_, sb_ = self._again(frames, views, (sa_, sb_), n, follow_min_dn=params.retry_min_dn, bridge_gaps=False)
         if _short_view(model, views, sa_, sb_, params) == n:
             sa_, sb_ = self._again(frames, views, (sa_, sb_), b if n == a else a, bridge_gaps=False)
-        _check_tip_agreement(model, views, sa_, sb_, params)
-        return sa_, sb_
+        return _common_part(model, views, sa_, sb_, params)
 
-    def _matched(self, frames: dict, views: dict, detail: dict) -> _Matched:
+    def _matched(self, frames: dict, views: dict, detail: dict) -> tuple:
         """The views' samples, after second tries where their tips disagree (:meth:`_agreeing`), matched and
-        triangulated (:func:`_matched_curve`); stage times (ms) into ``detail``: ``rays``, ``retry``, ``match_fit``."""
+        triangulated (:func:`_matched_curve`), and the :meth:`_agreeing` reason (None: the tips agree):
+        ``(matched, reason)``; stage times (ms) into ``detail``: ``rays``, ``retry``, ``match_fit``."""
         model, params = self.model, self.params
         a, b = model.pair
         t = time.perf_counter()
@@ -766,12 +810,13 @@ class FastReconstructor:
         detail["rays"] = 1e3 * (lap - t)
         tol = 2.0 / float(model.rig[a].K[0, 0])  # ~2 px of epipolar angle
         n_short = _short_view(model, views, sa_, sb_, params)
+        reason = None
         if n_short is not None:
-            sa_, sb_ = self._agreeing(frames, views, sa_, sb_, n_short)
+            sa_, sb_, reason = self._agreeing(frames, views, sa_, sb_, n_short)
             detail["retry"] = 1e3 * (time.perf_counter() - lap)
         m = _matched_curve(model, params, sa_, sb_, tol)
         detail["match_fit"] = 1e3 * (time.perf_counter() - lap)
-        return m
+        return m, reason
 
     def __call__(self, frames: dict) -> FastReconstruction:
         """Reconstruct one frame pair.
@@ -807,7 +852,7 @@ class FastReconstructor:
             _check_tube_widths(name, model.views[name], params.min_tube_width_px)
         views = self._extract_views(frames, timings, detail)
         t = time.perf_counter()
-        m = self._matched(frames, views, detail)
+        m, doubt = self._matched(frames, views, detail)
         lap = time.perf_counter()
         s_tr = {n: _transition_s(views[n], model.views[n]) for n in model.pair}
         points, transition = _backbone(model, params, views, m, s_tr)
@@ -821,7 +866,7 @@ class FastReconstructor:
         self._prev = (points, tip)
         timings["total"] = 1e3 * (time.perf_counter() - t_start)
         timings.update(detail)
-        return _reconstruction(model, views, m, s_tr, (points, tip, transition), reason, timings)
+        return _reconstruction(model, views, m, s_tr, (points, tip, transition), reason, timings, doubt)
 
 
 def _backbone(model: FastModel, params: FastParams, views: dict, m: _Matched, s_tr: dict) -> tuple:
@@ -839,9 +884,10 @@ def _backbone(model: FastModel, params: FastParams, views: dict, m: _Matched, s_
 
 
 def _reconstruction(model: FastModel, views: dict, m: _Matched, s_tr: dict, backbone: tuple, reason,
-                    timings: dict) -> FastReconstruction:
+                    timings: dict, doubt: str | None = None) -> FastReconstruction:
     """The :class:`FastReconstruction` of a pair: ``backbone`` = (points (n, 3) world mm, tip (3,) world mm,
-    (transition_s_mm, transition_world_mm)), the jump check's ``reason`` (None: plausible)."""
+    (transition_s_mm, transition_world_mm)), the jump check's ``reason`` (None: plausible), and why the method
+    cannot vouch for the shape (``doubt``; the order-matched fallback gives one of its own)."""
     points, tip, (transition_s, transition_world) = backbone
     pair = model.pair
     shapes = {n: model.views[n].shape for n in pair}
@@ -863,7 +909,7 @@ def _reconstruction(model: FastModel, views: dict, m: _Matched, s_tr: dict, back
         ray_gap_mm=float(np.median(m.gap)),
         correspondence=m.how,
         timings_ms=timings,
-        suspect_reason=_ORDERED_REASON if m.how == "ordered-dp" else None,
+        suspect_reason=doubt or (_ORDERED_REASON if m.how == "ordered-dp" else None),
     )
 
 
