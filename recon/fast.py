@@ -41,10 +41,11 @@ from .distortion import undistort_normalized
 from .epipolar import EpipolarFrame, align_dp, conditioning, monotonic, triangulate_rays
 from .errors import FrameError
 from .geometry import arc_length, interp_rows, resample_polyline
+from .guided import best_path, ray_candidates, tube_contrast
 from .methods import Method, register_method
 from .paper import camera_order
 from .rigcal import RigCalibration
-from .subpixel import ViewCenterline, ViewModel, ViewParams, extract_view, fit_curve, prepare_view
+from .subpixel import ViewCenterline, ViewModel, ViewParams, background_difference, extract_view, fit_curve, prepare_view
 from .temporal import JumpLimits, jump_check
 
 __all__ = ["FastParams", "FastModel", "FastReconstruction", "prepare_fast", "FastReconstructor"]
@@ -114,6 +115,15 @@ class FastParams:
         fraction of its curve (of its length in px); a view that lost the tube
         earlier than that refuses the frame (:class:`~recon.errors.FrameError`):
         a stub of the robot is no reconstruction of it.
+    guided_tip_share, guided_tip_sigmas, guided_support : float
+        Before the cut, the stretch the shorter view lost is looked for along
+        the longer view's rays (:func:`_lost_stretch`, :mod:`recon.guided`).
+        The path found is taken only where the shorter view shows the tube
+        over its last ``guided_tip_share`` of candidates (median contrast at
+        least ``guided_tip_sigmas`` robust sigmas) and over at least
+        ``guided_support`` of its length; the frame stays ``suspect``. Set
+        while looking at seed 1's wide-1-37 and wide-1-49 frames (max error
+        50 and 142 px after the cut, 11 and 17 px with the path).
     tip_triangulate_px : float
         Where continuing the backbone straight along its end tangent leaves
         one view's silhouette end more than this (px) off, the end is
@@ -142,6 +152,9 @@ class FastParams:
     retry_min_dn: float = 3.0
     max_tip_mismatch_px: float = 8.0
     min_common_fraction: float = 0.5
+    guided_tip_share: float = 0.1
+    guided_tip_sigmas: float = 3.0
+    guided_support: float = 0.4
     tip_triangulate_px: float = 3.0
     jump: JumpLimits = field(default_factory=JumpLimits)
 
@@ -654,11 +667,10 @@ def _cut_at_angle(model: FastModel, name: str, vc: ViewCenterline, phi_tip: floa
     The tip lies in one epipolar plane, so where the other view's tube ends, this view's tube, as far as both
     views see it, ends in the same plane."""
     smp = _view_samples(model, name, vc, 1.0)
-    d = smp.phi - phi_tip
-    beyond = np.flatnonzero(np.sign(d) != np.sign(d[0]))
-    if d[0] == 0.0 or beyond.size == 0:
+    i = _beyond_angle(smp, phi_tip)
+    if i is None:
         return None
-    i = int(beyond[0])
+    d = smp.phi - phi_tip
     s_cut = float(smp.s[i - 1] + d[i - 1] / (d[i - 1] - d[i]) * (smp.s[i] - smp.s[i - 1]))
     s0, s1 = vc.s_range
     keep = vc.s <= s_cut
@@ -667,6 +679,116 @@ def _cut_at_angle(model: FastModel, name: str, vc: ViewCenterline, phi_tip: floa
     tangent = vc.curve.derivative()(np.array([s_cut]))[0]
     return replace(vc, s_range=(s0, s_cut), points_px=vc.points_px[keep], s=vc.s[keep], width_px=vc.width_px[keep],
                    end_px=vc.curve(np.array([s_cut]))[0], end_s=s_cut, tangent_end=tangent / np.linalg.norm(tangent))
+
+
+def _beyond_angle(smp: _ViewSamples, phi_tip: float) -> int | None:
+    """Index of the first sample, from the base, past the epipolar-plane angle ``phi_tip`` (None: none is)."""
+    d = smp.phi - phi_tip
+    beyond = np.flatnonzero(np.sign(d) != np.sign(d[0]))
+    return None if d[0] == 0.0 or beyond.size == 0 else int(beyond[0])
+
+
+def _unit_rays(model: FastModel, name: str, uv: np.ndarray) -> np.ndarray:
+    d = _rays(model, name, uv)[0]
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+# The guided search (recon.guided): candidates per ray, how far a step in 3D may stretch beyond what the other
+# view sees of it (x12: the view sees the stretch nearly end-on), what that costs per unit of stretch, and the tube
+# contrast (robust sigmas) that scores nothing (1.5), counts as support (2) and stops counting (4, so that one bright
+# edge does not buy a detour). Set while looking at seed 1's wide-1-37 and wide-1-49 (tips lost on a
+# textured backdrop); on seed 2 they changed one frame, wide-2-3 frame 0 (max 190 -> 48 px, still suspect).
+_GUIDED_CANDIDATES = 240
+_GUIDED_STRETCH = 12.0
+_GUIDED_STRETCH_COST = 0.25
+_GUIDED_BIAS, _GUIDED_SUPPORT, _GUIDED_CAP = 1.5, 2.0, 4.0
+
+
+def _lost_stretch(model: FastModel, params: FastParams, views: dict, frame, n: str, other: str):
+    """View ``n``'s centerline continued along the stretch of tube it lost and view ``other`` sees
+    (:mod:`recon.guided`), or None where view ``n``'s image does not show that stretch's end.
+
+    The candidates lie on ``other``'s rays beyond ``n``'s end (:func:`_guided_candidates`); the path through
+    them is scored by :func:`recon.guided.tube_contrast` in ``n``. It is taken only where ``n`` sees the tube
+    over the path's last ``guided_tip_share`` (median contrast at least ``guided_tip_sigmas``) and over at least
+    ``guided_support`` of its length: the tip both views see, joined through a stretch one view shows faintly;
+    a path that ends on bare backdrop (``other`` ran on onto something else) is not.
+    """
+    found = _guided_candidates(model, views, n, other, params.sample_step_px / 2)
+    if found is None:
+        return None
+    pts, step, x0 = found
+    uv, contrast = _guided_contrast(model, views[n], frame, n, pts)
+    path = best_path(np.minimum(contrast, _GUIDED_CAP) - _GUIDED_BIAS, pts, step, x0,
+                     stretch_cost=_GUIDED_STRETCH_COST, max_stretch=_GUIDED_STRETCH)
+    if path is None:
+        return None
+    k = np.arange(len(path))
+    on = contrast[k, path]
+    tip = on[-max(4, int(np.ceil(params.guided_tip_share * len(on)))):]
+    if np.median(tip) < params.guided_tip_sigmas or np.mean(on >= _GUIDED_SUPPORT) < params.guided_support:
+        return None
+    # Only where the view shows the tube: across its faint stretches the refitted curve interpolates.
+    return _extended(views[n], uv[k, path][on >= params.guided_tip_sigmas], model.views[n].inner_radius_px, params)
+
+
+def _guided_candidates(model: FastModel, views: dict, n: str, other: str, step_px: float):
+    """Candidates for view ``n``'s lost stretch on ``other``'s rays beyond ``n``'s end: ``(points_mm (K, m, 3),
+    step_mm (K,), start_mm (3,))`` in world mm, or None where ``other`` does not run on beyond it.
+
+    The path starts where ``n``'s end ray passes ``other``'s first ray beyond the end; each step is at least
+    what ``other`` sees of it at that depth (``step_mm``)."""
+    vs, vl = views[n], views[other]
+    smp = _view_samples(model, other, vl, step_px)
+    end = (vs.end_px - vs.shift_px)[None]
+    i = _beyond_angle(smp, float(_phi_at(model, n, end)[0]))
+    if i is None or len(smp.s) - i < 8:
+        return None
+    ep = model.epipolar
+    c_l, c_s = (ep.center_a, ep.center_b) if other == model.pair[0] else (ep.center_b, ep.center_a)
+    dirs = _unit_rays(model, other, smp.uv[i - 1:])
+    x0 = triangulate_rays(c_l, dirs[:1], c_s, _unit_rays(model, n, end))[0][0]
+    depth_mm = float(np.linalg.norm(x0 - c_l))
+    step_mm = depth_mm * np.arccos(np.clip(np.einsum("ij,ij->i", dirs[1:], dirs[:-1]), -1.0, 1.0))
+    reach_mm = _GUIDED_STRETCH * np.cumsum(step_mm) + 1.0
+    return ray_candidates(c_l, dirs[1:], x0, reach_mm, _GUIDED_CANDIDATES), step_mm, x0
+
+
+def _guided_contrast(model: FastModel, vc: ViewCenterline, frame, n: str, pts_mm: np.ndarray) -> tuple:
+    """Candidates ``pts_mm`` (K, m, 3) projected into view ``n`` (px, in the frame's shift) and their tube
+    contrast there (:func:`recon.guided.tube_contrast`; 0 outside the image): ``(uv (K, m, 2), contrast (K, m))``."""
+    uv, z = _project(model.rig[n], pts_mm.reshape(-1, 3))
+    uv = uv + vc.shift_px
+    H, W = model.views[n].shape
+    r_px = max(model.views[n].inner_radius_px, 1.0)
+    ins = np.isfinite(uv).all(axis=1) & (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)
+    contrast = np.zeros(len(uv), np.float32)
+    grid = uv.reshape(*pts_mm.shape[:2], 2)
+    if ins.any():
+        m = int(np.ceil(4 * r_px)) + 2
+        x_lo, y_lo = np.maximum(np.floor(uv[ins].min(axis=0)) - m, 0).astype(int)
+        x_hi, y_hi = np.minimum(np.ceil(uv[ins].max(axis=0)) + m + 1, (W, H)).astype(int)
+        diff = background_difference(model.views[n], frame, vc.coarse.coefficients, (x_lo, y_lo, x_hi, y_hi), vc.shift_px)
+        along = np.gradient(grid, axis=0)  # the tube's direction near each candidate: its neighbours on the next rays
+        nrm = np.stack([-along[..., 1], along[..., 0]], axis=-1)
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=-1, keepdims=True), 1e-9)
+        contrast[ins] = tube_contrast(diff, (x_lo, y_lo), uv[ins], nrm.reshape(-1, 2)[ins], r_px)
+    return grid, contrast.reshape(pts_mm.shape[:2])
+
+
+def _extended(vc: ViewCenterline, more_px: np.ndarray, radius_px: float, params: FastParams) -> ViewCenterline:
+    """A view's centerline with centres ``more_px`` (m, 2) px added beyond its end, its curve refitted."""
+    s1 = vc.s_range[1]
+    start = vc.curve(np.array([s1]))[0]
+    s_more = s1 + np.cumsum(np.linalg.norm(np.diff(np.vstack([start, more_px]), axis=0), axis=1))
+    s = np.concatenate([vc.s, s_more])
+    pts = np.vstack([vc.points_px, more_px])
+    curve = fit_curve(s, pts, params.view.spline_knot_px)
+    tangent = curve.derivative()(s[-1:])[0]
+    tangent = tangent / np.linalg.norm(tangent)
+    return replace(vc, curve=curve, s_range=(vc.s_range[0], float(s[-1])), points_px=pts, s=s,
+                   width_px=np.concatenate([vc.width_px, np.full(len(more_px), 2.0 * radius_px)]),
+                   end_px=pts[-1] + radius_px * tangent, end_s=float(s[-1]), tangent_end=tangent)
 
 
 def _common_part(model: FastModel, views: dict, sa_: _ViewSamples, sb_: _ViewSamples, params: FastParams) -> tuple:
@@ -796,6 +918,18 @@ class FastReconstructor:
         sa_, sb_ = self._again(frames, views, (sa_, sb_), n, follow_min_dn=params.retry_min_dn, bridge_gaps=False)
         if _short_view(model, views, sa_, sb_, params) == n:
             sa_, sb_ = self._again(frames, views, (sa_, sb_), b if n == a else a, bridge_gaps=False)
+        n = _short_view(model, views, sa_, sb_, params)
+        if n is not None:
+            found = _lost_stretch(model, params, views, frames[n], n, b if n == a else a)
+            if found is not None:
+                gained = found.s_range[1] - views[n].s_range[1]
+                views[n] = found
+                smp = _view_samples(model, n, found, params.sample_step_px)
+                sa_, sb_ = (smp, sb_) if n == a else (sa_, smp)
+                sa_, sb_, reason = _common_part(model, views, sa_, sb_, params)
+                # The stretch found along the rays is where this view shows the tube faintly: not vouched for.
+                return sa_, sb_, reason or (f"{n} lost {gained:.0f} px of the tube before its tip; found again along "
+                                            f"{b if n == a else a}'s rays, where {n} shows it faintly")
         return _common_part(model, views, sa_, sb_, params)
 
     def _matched(self, frames: dict, views: dict, detail: dict) -> tuple:

@@ -78,6 +78,7 @@ __all__ = [
     "frame_shift",
     "coarse_path",
     "coarse_abs_difference",
+    "background_difference",
     "edges_from_profiles",
     "fit_curve",
     "UniformSpline",
@@ -329,6 +330,40 @@ def coarse_abs_difference(model: ViewModel, frame: np.ndarray, coeff: np.ndarray
     px = np.stack([frame[y0 * f + a: y1 * f: f, x0 * f + b: x1 * f: f] for a in (lo, hi) for b in (lo, hi)], axis=-1)
     bg = model.coarse_stack[y0:y1, x0:x1] @ coeff
     return np.abs(px.astype(np.float32) - bg).mean(axis=-1)
+
+
+def background_difference(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, box: tuple,
+                          shift_px=(0.0, 0.0)) -> np.ndarray:
+    """Frame minus background over a box of full-resolution pixels (gray levels).
+
+    The background is rebuilt there (``ViewModel.stack @ coeff``) and moved by
+    the frame's image shift (:func:`frame_shift`), so the edges of a textured
+    backdrop cancel under camera jitter.
+
+    Parameters
+    ----------
+    model : ViewModel
+    frame : (H, W) or (H, W, 3) array
+        The frame (gray levels).
+    coeff : (k+1,) float32 array
+        The frame's background coefficients (:func:`frame_coefficients`).
+    box : (x0, y0, x1, y1)
+        Pixel bounds (image frame, px; x1, y1 exclusive), within the image.
+    shift_px : (2,)
+        The frame's shift against the background (px).
+
+    Returns
+    -------
+    (y1-y0, x1-x0) float32 array
+    """
+    x0, y0, x1, y1 = (int(v) for v in box)
+    H, W = model.shape
+    idx = (np.arange(y0, y1)[:, None] * W + np.arange(x0, x1)[None, :]).ravel()
+    bg = (model.stack[idx] @ np.asarray(coeff, np.float32)).reshape(y1 - y0, x1 - x0)
+    if np.any(np.asarray(shift_px) != 0):
+        move = np.float32([[1, 0, shift_px[0]], [0, 1, shift_px[1]]])
+        bg = cv2.warpAffine(bg, move, (x1 - x0, y1 - y0), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return _gray_frame(model, frame)[y0:y1, x0:x1].astype(np.float32) - bg
 
 
 def _entry_point(camera, base_world_mm, axis_world, H: int, W: int, margin: float = 2.0, reach_mm: float = 400.0):

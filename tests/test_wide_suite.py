@@ -48,9 +48,8 @@ def test_fast_meets_its_pixel_bounds(report):
     assert a["tip_error_px_median"] <= 3.0, a
 
 
-@pytest.mark.xfail(strict=True, reason="issue 13, open: measured 8 of 12 frames; wide-21-3 (a 3.2 px tube) is refused "
-                   "on every frame with 'side: no robot at its base', and wide-21-0 frame 1 by the tip check (the side "
-                   "view follows the tube on across a gap onto a clutter box's edge: 'top's ends 22 px short')")
+@pytest.mark.xfail(strict=True, reason="issue 13, open: measured 9 of 12 frames (2026-12-03); wide-21-3 (a 3.2 px tube) "
+                   "is refused on every frame with 'side: no robot at its base'")
 def test_fast_reconstructs_95_percent(report):
     a = report[0]["methods"]["fast"]
     assert a["reconstructed_fraction"] >= 0.95, a

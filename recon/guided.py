@@ -1,0 +1,135 @@
+"""A stretch of tube one view lost, found again along the other view's rays.
+
+Where one view's tube fades into the backdrop (a few gray levels off it, often
+where its polarity flips on a gradient) and the other view still sees it, the
+second view's centerline beyond the first one's end gives, sample by sample, a
+ray the tube lies on. Projected into the first view each ray is an epipolar
+line, and the tube crosses it once. This module finds those crossings as one
+path: candidate points along each ray (world, mm), scored by how much the first
+view's background difference looks like a tube there (:func:`tube_contrast`), joined by dynamic
+programming under a bound on the step in 3D (the tube cannot jump), shortest
+paths preferred (where no view shows the tube, its depth is interpolated
+straight between the stretches that do show it).
+
+Pure functions over arrays; :mod:`recon.fast` prepares their inputs and judges
+what they find.
+"""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+__all__ = ["tube_contrast", "ray_candidates", "best_path"]
+
+
+def tube_contrast(diff: np.ndarray, origin_px, uv: np.ndarray, normals: np.ndarray, radius_px: float) -> np.ndarray:
+    """How tube-like the background difference is at points ``uv`` across ``normals``, in robust sigmas (>= 0).
+
+    The mean difference over the tube's middle (+- r/2) against each side
+    (1.5 r + 1 to 2.5 r + 1 out): the smaller of the two steps where both have
+    the same sign, else 0. A tube of either polarity gives its contrast; the
+    edge of a backdrop object left in the difference by a lighting change (one
+    side only) gives nothing. Scaled by the median absolute value of all the
+    points' readings (most of them lie on backdrop).
+
+    Parameters
+    ----------
+    diff : (h, w) float32
+        Frame minus background over a box (gray levels).
+    origin_px : (2,)
+        The box's top-left pixel (x0, y0).
+    uv : (m, 2)
+        Points (image frame, px).
+    normals : (m, 2)
+        Unit directions across the tube there.
+    radius_px : float
+        The tube's radius in this view (px).
+
+    Returns
+    -------
+    (m,) float32
+    """
+    r = max(float(radius_px), 1.0)
+    mid = np.array([-0.5, 0.0, 0.5]) * r
+    side = 1.5 * r + 1.0 + np.array([0.0, 0.5, 1.0]) * r
+
+    def mean_at(offsets):
+        p = uv[:, None, :] + offsets[None, :, None] * normals[:, None, :] - np.asarray(origin_px, np.float64)
+        v = cv2.remap(diff, p[..., 0].astype(np.float32), p[..., 1].astype(np.float32), cv2.INTER_LINEAR,
+                      borderMode=cv2.BORDER_REPLICATE)
+        return v.mean(axis=1)
+
+    c, lo, hi = mean_at(mid), mean_at(-side), mean_at(side)
+    step_lo, step_hi = c - lo, c - hi
+    resp = np.where(step_lo * step_hi > 0, np.minimum(np.abs(step_lo), np.abs(step_hi)), 0.0)
+    scale = max(float(np.median(np.abs(c - 0.5 * (lo + hi)))) / 0.6745, 1e-3)
+    return (resp / scale).astype(np.float32)
+
+
+def ray_candidates(center_mm: np.ndarray, dirs: np.ndarray, start_mm: np.ndarray, reach_mm: np.ndarray,
+                   n: int) -> np.ndarray:
+    """``n`` points on each ray within ``reach_mm`` of ``start_mm`` (world, mm): (K, n, 3).
+
+    Parameters
+    ----------
+    center_mm : (3,)
+        The rays' origin (the camera centre, world mm).
+    dirs : (K, 3)
+        Unit ray directions (world).
+    start_mm : (3,)
+        Where the path starts (the last point both views see).
+    reach_mm : (K,)
+        How far from ``start_mm`` each ray's point can lie (mm).
+    n : int
+        Candidates per ray, evenly spaced in depth.
+    """
+    lam_c = (start_mm - center_mm) @ dirs.T  # depth of each ray's point closest to the start
+    d_perp2 = np.sum((center_mm + lam_c[:, None] * dirs - start_mm) ** 2, axis=1)
+    half = np.sqrt(np.maximum(reach_mm ** 2 - d_perp2, 0.0))
+    t = np.linspace(-1.0, 1.0, n)
+    lam = lam_c[:, None] + half[:, None] * t[None, :]
+    return center_mm + lam[..., None] * dirs[:, None, :]
+
+
+def best_path(score: np.ndarray, points_mm: np.ndarray, step_mm: np.ndarray, start_mm: np.ndarray,
+              stretch_cost: float = 1.0, max_stretch: float = 4.0) -> np.ndarray:
+    """The candidate path that scores most (dynamic programming): its index per ray, (K,).
+
+    The path's value is its candidates' ``score`` less ``stretch_cost`` times
+    each step's excess length, ``|dX| / step_mm - 1``; a step longer than
+    ``max_stretch`` times ``step_mm`` is not allowed, and the first candidate
+    lies within ``max_stretch * step_mm[0]`` of ``start_mm``.
+
+    Parameters
+    ----------
+    score : (K, n)
+        Each candidate's score (e.g. its tube response, less a bias).
+    points_mm : (K, n, 3)
+        The candidates (world, mm): :func:`ray_candidates`.
+    step_mm : (K,)
+        The least length of each step (mm): what the other view sees of it.
+    start_mm : (3,)
+
+    Returns
+    -------
+    (K,) int array or None
+        None where no path keeps to the step bound.
+    """
+    K, n = score.shape
+    d0 = np.linalg.norm(points_mm[0] - start_mm, axis=1)
+    value = np.where(d0 <= max_stretch * step_mm[0] + 1e-9, score[0], -np.inf)
+    back = np.zeros((K, n), np.int32)
+    for k in range(1, K):
+        step = np.linalg.norm(points_mm[k][:, None, :] - points_mm[k - 1][None, :, :], axis=2)  # (n now, n before)
+        excess = step / max(step_mm[k], 1e-6) - 1.0
+        total = value[None, :] - stretch_cost * np.maximum(excess, 0.0)
+        total[excess > max_stretch - 1.0] = -np.inf
+        back[k] = np.argmax(total, axis=1)
+        value = score[k] + total[np.arange(n), back[k]]
+    if not np.isfinite(value.max()):
+        return None
+    path = np.empty(K, np.int64)
+    path[-1] = int(np.argmax(value))
+    for k in range(K - 1, 0, -1):
+        path[k - 1] = back[k, path[k]]
+    return path
