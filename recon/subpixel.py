@@ -793,6 +793,10 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
     if area < min_region:
         if roi is not None:
             return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)
+        if model.start_px is None or np.allclose(model.start_px, model.base_px):
+            if _join_along_axis(model, mask, (bx, by)):
+                area, rect, (bx, by) = _robot_region(model, mask, (bx, by), bwin, box, min_region, True)
+    if area < min_region:
         n_lab, _, stats, _ = cv2.connectedComponentsWithStats((mask > 0).view(np.uint8), connectivity=8)
         biggest = int(stats[1:, cv2.CC_STAT_AREA].max()) if n_lab > 1 else 0
         raise FrameError(f"no robot at its base (largest foreground region, {biggest * f * f} px, is elsewhere)", model.name)
@@ -812,6 +816,32 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
     path_px = ((path[:, ::-1].astype(np.float64) + 0.5) * g + [x0p, y0p]) * f - 0.5
     bbox = (sx * f, sy * f, (sx + sw) * f, (sy + sh) * f)
     return CoarseResult(coeff, path_px, bbox, area, (sx, sy, sx + sw, sy + sh))
+
+
+def _join_along_axis(model: ViewModel, mask: np.ndarray, base: tuple, gap_px: float = 48.0) -> bool:
+    """Join the foreground pieces in a corridor ahead of the base along the insertion axis to the base (in place:
+    a line of 1s from the base to the last piece reached in steps of at most ``gap_px`` along the axis;
+    ``mask`` and ``base`` in coarse px of the whole image).
+
+    The robot leaves its actuation unit along the insertion axis, and the outer tube is straight there; where
+    its first stretch stands a few gray levels off the backdrop, only pieces of it pass the coarse threshold
+    (wide-21-3 and wide-1-69: tubes of 3-5 px on mottled backdrops, every frame refused). The corridor is
+    the outer tube's width and a coarse pixel either side. Returns whether a line was drawn.
+    """
+    f = model.factor
+    ys, xs = np.nonzero(mask)
+    d = np.column_stack([xs - base[0], ys - base[1]]).astype(np.float64)
+    along = d @ model.axis_px
+    across = np.abs(d @ np.array([-model.axis_px[1], model.axis_px[0]]))
+    ahead = np.sort(along[(along > 0) & (across <= max(1.5, model.outer_radius_px / f + 1.0))])
+    steps = np.diff(np.concatenate([[0.0], ahead]))
+    n = int(np.argmax(steps > gap_px / f)) if np.any(steps > gap_px / f) else len(ahead)
+    if n < 3:
+        return False
+    mask[mask > 1] = 1  # undo the fills of the pieces tried before
+    end = np.asarray(base, np.float64) + ahead[n - 1] * model.axis_px
+    cv2.line(mask, tuple(int(round(v)) for v in base), tuple(int(round(v)) for v in end), 1, 1)
+    return True
 
 
 def _search_boxes(model: ViewModel, roi, base_search_px: float) -> tuple:

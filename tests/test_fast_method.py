@@ -23,8 +23,8 @@ from recon.methods import get_method, prepare
 from recon.metrics import backbone_errors, point_to_polyline_distances
 from recon.params import params_from_dict
 from recon.rigcal import RigCalibration
-from recon.subpixel import (ViewParams, _Fitter, _near, coarse_abs_difference, extract_view, fit_curve, frame_coefficients,
-                            frame_shift, prepare_view)
+from recon.subpixel import (ViewParams, _Fitter, _near, coarse_abs_difference, coarse_path, extract_view, fit_curve,
+                            frame_coefficients, frame_shift, prepare_view)
 
 # Frames of scenes/paper.toml: inner tube 5 mm out, 45 mm out (straight then curved), and rotated.
 FRAMES = (0, 9, 15)
@@ -449,3 +449,25 @@ def test_warm_up_in_prepare_leaves_no_trace(paper_scene, paper_frames):
         a, b = warm(shot.images), cold(shot.images)
         np.testing.assert_array_equal(a.points_world_mm, b.points_world_mm)
         assert a.jump_flag == b.jump_flag
+
+
+def test_first_stretch_lost_in_the_backdrop_is_joined_to_the_base(synthetic):
+    """The robot's first 40 px stand at the backdrop's gray level and the next 90 px show only in pieces
+    (a thin tube on a mottled backdrop): nothing of it lies within the base's search window, but the pieces
+    lie ahead of the base along the insertion axis, so the coarse path still starts at the base and runs
+    to the tip."""
+    rig, backgrounds, rng = synthetic
+    s, pts, radii = robot_backbone()
+    frames = _frames(rig, rng, pts, radii)
+    view = prepare_fast(rig, backgrounds).views["side"]
+    frame = frames["side"].astype(np.float32)
+    plain = _backdrop(rng, 1.01)
+    (u0, v0), = rig["side"].project(np.zeros((1, 3)))[0]
+    cols = np.arange(1024)
+    lost = (cols < u0 + 40) | ((cols < u0 + 130) & ((cols - int(u0)) % 30 < 12))
+    frame[:, lost] = plain[:, lost]
+    frame = np.clip(frame, 0, 255).astype(np.uint8)
+    coarse = coarse_path(view, frame)
+    tip_uv = rig["side"].project(pts[-1:])[0][0]
+    assert np.linalg.norm(coarse.path_px[0] - [u0, v0]) < 12.0, coarse.path_px[0]
+    assert np.linalg.norm(coarse.path_px[-1] - tip_uv) < 24.0, (coarse.path_px[-1], tip_uv)
