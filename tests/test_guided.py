@@ -38,6 +38,19 @@ def test_contrast_reads_the_box_at_its_origin():
     assert c[0] > 5.0
 
 
+def test_contrast_of_more_points_than_one_remap_takes():
+    """Over 32767 points (cv2.remap's limit on a map's rows): 100 points repeated 400 times read as the 100 do."""
+    img = _tube_image(1.0)
+    rng = np.random.default_rng(1)
+    uv = np.column_stack([rng.uniform(5, 45, 100), rng.uniform(10, 70, 100)])
+    uv[:10, 1] = 40.0  # some on the tube
+    nrm = np.tile([0.0, 1.0], (100, 1))
+    once = tube_contrast(img, (0, 0), uv, nrm, 2.0)
+    many = tube_contrast(img, (0, 0), np.tile(uv, (400, 1)), np.tile(nrm, (400, 1)), 2.0)
+    assert np.all(once[:10] > 5.0)
+    np.testing.assert_allclose(many, np.tile(once, 400), rtol=1e-5, atol=1e-5)
+
+
 @settings(max_examples=20, deadline=None)
 @given(st.integers(0, 10_000))
 def test_best_path_follows_the_scored_path_under_the_step_bound(seed):
