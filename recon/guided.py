@@ -92,6 +92,11 @@ def ray_candidates(center_mm: np.ndarray, dirs: np.ndarray, start_mm: np.ndarray
         How far from ``start_mm`` each ray's point can lie (mm).
     n : int
         Candidates per ray, evenly spaced in depth.
+
+    Returns
+    -------
+    (K, n, 3) float array
+        The candidates (world, mm), ray by ray, nearest the camera first.
     """
     lam_c = (start_mm - center_mm) @ dirs.T  # depth of each ray's point closest to the start
     d_perp2 = np.sum((center_mm + lam_c[:, None] * dirs - start_mm) ** 2, axis=1)
