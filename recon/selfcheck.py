@@ -6,12 +6,13 @@ or one that stops far short of the tip. This module judges any backbone (any
 method, any peer) against the images alone, with its own foreground per view
 that shares nothing with the method's silhouette:
 
-* **Foreground.** Per view, the background frames are gain-normalized and
+* **Foreground.** Per view, the background frames are brought to one lighting
+  (a gain and an offset, each with a ramp across the image: :class:`Lighting`) and
   reduced to a per-pixel band ``[erode(min), dilate(max)]`` over a small
   window (camera jitter of a pixel moves every texture edge), widened by
   ``noise_sigmas`` of the background's noise and ``margin_dn`` gray levels.
-  A frame, gain-normalized against the background mean (lighting varies by
-  +-20 %), is foreground where it leaves that band.
+  A frame, brought to the background mean's lighting the same way (lighting
+  varies by +-20 %, with ramps), is foreground where it leaves that band.
 * **Reprojection.** The backbone is projected into each view
   (:meth:`recon.camera.Camera.project`, with distortion) every ~1 px along
   the curve, with the tube radius in pixels from the focal length and depth.
@@ -48,7 +49,7 @@ from .paper import behind_base_pixels
 from .rigcal import RigCalibration
 
 __all__ = ["SelfCheckParams", "SelfCheckModel", "SelfCheck", "FIGURE_LIMITS", "prepare_selfcheck", "check_backbone",
-           "foreground_roi", "fit_gain_offset"]
+           "foreground_roi", "Lighting", "fit_lighting"]
 
 
 @dataclass(frozen=True)
@@ -354,58 +355,119 @@ def _gray(image: np.ndarray, name: str) -> np.ndarray:
     return img
 
 
-def fit_gain_offset(image_dn: np.ndarray, background_dn: np.ndarray, iterations: int = 2) -> tuple:
-    """Robust ``image ~ gain * background + offset`` over sample pixels (gray levels).
+@dataclass(frozen=True)
+class Lighting:
+    """A frame's lighting against the background mean: ``frame ~ gain(u, v) * background + offset(u, v)`` (gray levels).
+
+    ``gain(u, v) = gain + gain_u * x + gain_v * y`` and ``offset(u, v) = offset_dn + offset_u_dn * x +
+    offset_v_dn * y``, with ``x = u / width - 0.5`` and ``y = v / height - 0.5`` (image frame, px): an
+    illumination ramp across the image. On a textured backdrop the ramp is fitted as a gain plane (light
+    scales what it falls on), on a uniform one as an offset plane (a gain cannot be told from an offset
+    there).
+    """
+
+    gain: float = 1.0
+    gain_u: float = 0.0
+    gain_v: float = 0.0
+    offset_dn: float = 0.0
+    offset_u_dn: float = 0.0
+    offset_v_dn: float = 0.0
+    width: int = 1
+    height: int = 1
+
+    def _planes(self, u, v) -> tuple:
+        x = np.asarray(u, np.float32) / np.float32(self.width) - np.float32(0.5)
+        y = np.asarray(v, np.float32) / np.float32(self.height) - np.float32(0.5)
+        g = np.float32(self.gain) + np.float32(self.gain_u) * x + np.float32(self.gain_v) * y
+        o = np.float32(self.offset_dn) + np.float32(self.offset_u_dn) * x + np.float32(self.offset_v_dn) * y
+        return g, o
+
+    def normalize(self, values_dn, u, v) -> np.ndarray:
+        """Gray levels at pixels ``(u, v)`` (broadcast) brought to the background's lighting: ``(value - offset) / gain``."""
+        g, o = self._planes(u, v)
+        return (np.asarray(values_dn, np.float32) - o) / g
+
+    def normalize_roi(self, image_dn: np.ndarray, x0: int, y0: int) -> np.ndarray:
+        """:meth:`normalize` of an image region whose top-left pixel is ``(x0, y0)``: (h, w) float32."""
+        h, w = image_dn.shape
+        g, o = self._planes(np.arange(x0, x0 + w)[None, :], np.arange(y0, y0 + h)[:, None])
+        return (image_dn.astype(np.float32) - o) / g
+
+
+def fit_lighting(image_dn: np.ndarray, background_dn: np.ndarray, u: np.ndarray, v: np.ndarray, shape: tuple,
+                 iterations: int = 2) -> Lighting:
+    """Robust :class:`Lighting` of a frame over sample pixels.
 
     Least squares, re-fitted on the samples within 3 robust sigmas (the robot
-    and its neighbourhood are a minority of the samples and drop out). Where
-    the background has no contrast to fit a gain against (a uniform backdrop,
-    binary masks), the gain stays 1 and only the offset (a median) is fitted.
+    and its neighbourhood are a minority of the samples and drop out). Where the
+    background has contrast (a standard deviation of 2 gray levels or more over
+    the samples), a gain plane and an offset; else an offset plane with the
+    gain 1 (a uniform backdrop, binary masks). A gain plane leaving 0.3-3 over
+    the samples means the fit follows something other than lighting: the
+    offset plane is fitted instead.
 
     Parameters
     ----------
     image_dn, background_dn : (n,) arrays
         The frame's and the background mean's gray levels at the same pixels.
+    u, v : (n,) arrays
+        The pixels (image frame, px).
+    shape : (height, width)
+        The image's size (px).
 
     Returns
     -------
-    gain, offset_dn : float
+    Lighting
     """
     i = np.asarray(image_dn, np.float64).ravel()
     b = np.asarray(background_dn, np.float64).ravel()
+    h, w = shape
+    x = np.asarray(u, np.float64).ravel() / w - 0.5
+    y = np.asarray(v, np.float64).ravel() / h - 0.5
+    flat = Lighting(offset_dn=float(np.median(i - b)) if i.size else 0.0, width=w, height=h)
     if i.size < 8:
-        return 1.0, 0.0
+        return flat
     keep = np.ones(i.size, bool)
-    gain, offset = 1.0, float(np.median(i - b))
+    light = flat
     for _ in range(iterations):
-        ik, bk = i[keep], b[keep]
-        if ik.size < 8:
+        if keep.sum() < 8:
             break
-        sb = float(np.std(bk))
-        if sb >= 2.0:
-            cov = float(np.mean((bk - bk.mean()) * (ik - ik.mean())))
-            g = cov / (sb * sb)
-            # A gain far from 1 means the fit is driven by something else than lighting.
-            gain = g if 0.3 < g < 3.0 else 1.0
-            offset = float(ik.mean() - gain * bk.mean()) if 0.3 < g < 3.0 else float(np.median(ik - bk))
-        else:
-            gain, offset = 1.0, float(np.median(ik - bk))
-        res = i - (gain * b + offset)
+        light = _lighting_lsq(i[keep], b[keep], x[keep], y[keep], w, h)
+        g, o = light._planes((x + 0.5) * w, (y + 0.5) * h)
+        res = i - (g * b + o)
         mad = float(np.median(np.abs(res[keep] - np.median(res[keep]))))
         keep = np.abs(res) <= 3.0 * max(1.4826 * mad, 1.0) + 2.0
-    return float(gain), float(offset)
+    return light
+
+
+def _lighting_lsq(i: np.ndarray, b: np.ndarray, x: np.ndarray, y: np.ndarray, w: int, h: int) -> Lighting:
+    """One least-squares :class:`Lighting` fit (normalized coordinates ``x``, ``y``); see :func:`fit_lighting`."""
+    ones = np.ones_like(i)
+    if float(np.std(b)) >= 2.0:
+        A = np.stack([b, b * x, b * y, ones], axis=1)
+        c = np.linalg.lstsq(A, i, rcond=None)[0]
+        gain = c[0] + c[1] * x + c[2] * y
+        if np.all(np.isfinite(c)) and gain.min() > 0.3 and gain.max() < 3.0:
+            return Lighting(gain=float(c[0]), gain_u=float(c[1]), gain_v=float(c[2]), offset_dn=float(c[3]), width=w, height=h)
+    c = np.linalg.lstsq(np.stack([ones, x, y], axis=1), i - b, rcond=None)[0]
+    return Lighting(offset_dn=float(c[0]), offset_u_dn=float(c[1]), offset_v_dn=float(c[2]), width=w, height=h)
 
 
 def _normalized_stack(stack: np.ndarray) -> np.ndarray:
-    """Background frames (N, H, W) as float32, each gain-normalized to the stack's mean."""
+    """Background frames (N, H, W) as float32, each brought to the stack mean's lighting (:func:`fit_lighting`).
+
+    A frame's lighting ramp left in would widen the band by its amplitude (up to
+    15-30 gray levels at the border of a plain backdrop), hiding a faint tube.
+    """
     f = stack.astype(np.float32)
     mean = f.mean(axis=0)
+    H, W = mean.shape
     step = max(1, int(math.sqrt(mean.size / _GAIN_SAMPLES)))
+    vs, us = np.mgrid[0:H:step, 0:W:step]
     ms = mean[::step, ::step]
     out = np.empty_like(f)
     for k in range(f.shape[0]):
-        g, o = fit_gain_offset(f[k, ::step, ::step], ms)
-        out[k] = (f[k] - o) / g
+        out[k] = fit_lighting(f[k, ::step, ::step], ms, us, vs, (H, W)).normalize_roi(f[k], 0, 0)
     return out
 
 
@@ -492,10 +554,10 @@ def foreground_roi(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.n
 
 
 def _foreground_u8(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.ndarray | None = None,
-                   gain_out: list | None = None) -> np.ndarray:
+                   lighting_out: list | None = None) -> np.ndarray:
     """:func:`foreground_roi` as a (h, w) uint8 mask (255 foreground), in OpenCV passes; ``exclude`` nonzero = left out.
 
-    ``gain_out``: a list that receives the fitted ``(gain, offset)``.
+    ``lighting_out``: a list that receives the fitted :class:`Lighting`.
     """
     x0, y0, x1, y1 = roi
     img = gray[y0:y1, x0:x1]
@@ -507,10 +569,11 @@ def _foreground_u8(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.n
         sub &= exclude[::step, ::step] == 0
     if view.behind is not None:
         sub &= ~view.behind[y0:y1:step, x0:x1:step]
-    gain, offset = fit_gain_offset(img[::step, ::step][sub], mean[::step, ::step][sub])
-    if gain_out is not None:
-        gain_out[:] = [gain, offset]
-    norm = cv2.addWeighted(img, 1.0 / gain, img, 0.0, -offset / gain, dtype=cv2.CV_32F)
+    vs, us = np.mgrid[y0:y1:step, x0:x1:step]
+    light = fit_lighting(img[::step, ::step][sub], mean[::step, ::step][sub], us[sub], vs[sub], gray.shape)
+    if lighting_out is not None:
+        lighting_out[:] = [light]
+    norm = light.normalize_roi(img, x0, y0)
     fg = cv2.bitwise_not(cv2.inRange(norm, view.lo[y0:y1, x0:x1], view.hi[y0:y1, x0:x1]))
     if view.keep is not None:
         fg = cv2.bitwise_and(fg, view.keep[y0:y1, x0:x1])
@@ -639,7 +702,7 @@ def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_
     return out
 
 
-def _contrast_profiles(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv: np.ndarray, normals: np.ndarray,
+def _contrast_profiles(view: _ViewModel, gray: np.ndarray, lighting: list, uv: np.ndarray, normals: np.ndarray,
                        r_out_px: np.ndarray, r_in_px: np.ndarray, params: SelfCheckParams) -> tuple:
     """Per point: the image's difference from the background across the tube's middle, and just beside the band.
 
@@ -648,7 +711,7 @@ def _contrast_profiles(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv
     point (``centre``), and the most of 5 samples over ``2 r_in`` just outside
     the band, on the quieter of the two sides (``beside``).
     """
-    gain, offset = gain_offset if gain_offset else (1.0, 0.0)
+    light = lighting[0] if lighting else Lighting(width=gray.shape[1], height=gray.shape[0])
     ri = np.maximum(r_in_px, 1.0)
 
     h, w = gray.shape
@@ -660,7 +723,7 @@ def _contrast_profiles(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv
         ui, vi = u[ins], v[ins]
         half = np.maximum(0.5 * (view.hi[vi, ui] - view.lo[vi, ui]), 1.0)
         out = np.full(u.shape, np.nan, np.float32)
-        out[ins] = np.abs((gray[vi, ui] - offset) / gain - view.mean[vi, ui]) / half
+        out[ins] = np.abs(light.normalize(gray[vi, ui], ui, vi) - view.mean[vi, ui]) / half
         return out
 
     def most(x):  # max across, -inf where all outside the image
@@ -675,7 +738,7 @@ def _contrast_profiles(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv
     return centre, beside
 
 
-def _contrast_support(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv: np.ndarray, normals: np.ndarray,
+def _contrast_support(view: _ViewModel, gray: np.ndarray, lighting: list, uv: np.ndarray, normals: np.ndarray,
                       r_out_px: np.ndarray, r_in_px: np.ndarray, params: SelfCheckParams) -> np.ndarray:
     """(m,) bool: centerline samples where the image differs from the background along the tube more than beside it.
 
@@ -688,7 +751,7 @@ def _contrast_support(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv:
     ``contrast_ratio`` times that beside it; a backbone over bare backdrop is
     not (the two are alike there).
     """
-    centre, beside = _contrast_profiles(view, gray, gain_offset, uv, normals, r_out_px, r_in_px, params)
+    centre, beside = _contrast_profiles(view, gray, lighting, uv, normals, r_out_px, r_in_px, params)
     centre = np.where(np.isfinite(centre), centre, 0.0)
     beside = np.where(np.isfinite(beside), beside, centre)
     win = max(1, int(round(params.contrast_window_px / params.sample_step_px)))
@@ -697,18 +760,20 @@ def _contrast_support(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv:
 
 
 def _running_median(x: np.ndarray, win: int) -> np.ndarray:
-    """Median over ``win`` consecutive samples centred on each (the ends padded by repetition).
+    """Median over ``win`` consecutive samples centred on each (the ends padded by reflection).
 
-    A median, not a mean: one dark speck on the line would carry a mean alone.
+    A median, not a mean: one dark speck on the line would carry a mean alone. Reflected, not
+    repeated, at the ends: repeated, the last sample filled half of the last window, and one
+    noisy sample at the end of a backbone that ran on past the tip carried the median there.
     """
     if win <= 1 or len(x) == 0:
         return x.copy()
     h = win // 2
-    xp = np.pad(x, (h, win - 1 - h), mode="edge")
+    xp = np.pad(x, (h, win - 1 - h), mode="reflect" if len(x) > 1 else "edge")
     return np.median(np.lib.stride_tricks.sliding_window_view(xp, win), axis=1)
 
 
-def _beyond_tip(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv_curve: np.ndarray, r_out_tip: float,
+def _beyond_tip(view: _ViewModel, gray: np.ndarray, lighting: list, uv_curve: np.ndarray, r_out_tip: float,
                 r_in_tip: float, params: SelfCheckParams, end_face_px: float = 0.0) -> float | None:
     """Tube contrast on the backbone's continuation beyond its reprojected tip, over what would flag it (> 1: the tube goes on).
 
@@ -739,7 +804,7 @@ def _beyond_tip(view: _ViewModel, gray: np.ndarray, gain_offset: list, uv_curve:
         return None
     pts = pts[inside]
     nrm = np.repeat(np.array([[-d[1], d[0]]]), len(pts), axis=0)
-    centre, beside = _contrast_profiles(view, gray, gain_offset, pts, nrm, np.full(len(pts), r_out_tip),
+    centre, beside = _contrast_profiles(view, gray, lighting, pts, nrm, np.full(len(pts), r_out_tip),
                                         np.full(len(pts), r_in_tip), params)
     ok = np.isfinite(centre) & np.isfinite(beside)
     if ok.sum() < 0.5 * len(dist):
@@ -811,11 +876,11 @@ def _band_and_foreground(view: _ViewModel, camera, gray: np.ndarray, uv_curve: n
                          params: SelfCheckParams) -> tuple:
     """The reprojected tube's band and the foreground in a region of interest, grown until the robot's foreground fits.
 
-    Returns ``(roi, band, fg, labels, stats, band_lab, touching, gain_offset)``: the final
+    Returns ``(roi, band, fg, labels, stats, band_lab, touching, lighting)``: the final
     region ``[x0, y0, x1, y1]`` (px), the band and foreground masks (uint8, region
     coordinates), the foreground's connected components with their stats, the
-    component labels under the band, the labels touching it, and the fitted
-    ``(gain, offset)``.
+    component labels under the band, the labels touching it, and a list holding the
+    fitted :class:`Lighting`.
     """
     W, H = camera.width, camera.height
     thickness = 2 * int(math.ceil(r_band)) + 1
@@ -829,8 +894,8 @@ def _band_and_foreground(view: _ViewModel, camera, gray: np.ndarray, uv_curve: n
         pl = np.rint((poly - [x0, y0]) * 16).astype(np.int32)
         cv2.polylines(band, [pl.reshape(-1, 1, 2)], False, 1, thickness=thickness, lineType=cv2.LINE_8, shift=4)
         _cut_tip_cap(band, uv_curve - [x0, y0], r_band, params.explain_tolerance_px)
-        gain_offset = []
-        fg = _foreground_u8(view, gray, tuple(roi), exclude=band, gain_out=gain_offset)
+        lighting = []
+        fg = _foreground_u8(view, gray, tuple(roi), exclude=band, lighting_out=lighting)
         # Close 1-px cracks (specular highlights as bright as the backdrop) before measuring runs and regions.
         fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, _CLOSE_KERNEL)
         if view.keep is not None:
@@ -854,7 +919,7 @@ def _band_and_foreground(view: _ViewModel, camera, gray: np.ndarray, uv_curve: n
         dx, dy = x1 - x0, y1 - y0
         roi = [max(0, x0 - dx) if grow[0] else x0, max(0, y0 - dy) if grow[1] else y0,
                min(W, x1 + dx) if grow[2] else x1, min(H, y1 + dy) if grow[3] else y1]
-    return roi, band, fg, labels, stats, band_lab, touching, gain_offset
+    return roi, band, fg, labels, stats, band_lab, touching, lighting
 
 
 def _drop_specks(band: np.ndarray, labels: np.ndarray, stats: np.ndarray, touching: np.ndarray, n_unexplained: int,
@@ -909,7 +974,7 @@ def _unseen_share_of(camera, others, ys: np.ndarray, xs: np.ndarray, uvv: np.nda
     return _unseen_share(camera, list(others), ys, xs, uv_g, depth_g, params)
 
 
-def _tip_figures(view: _ViewModel, camera, gray: np.ndarray, gain_offset: list, uv: np.ndarray, finite: np.ndarray,
+def _tip_figures(view: _ViewModel, camera, gray: np.ndarray, lighting: list, uv: np.ndarray, finite: np.ndarray,
                  vis: np.ndarray, on: np.ndarray, on_fg: np.ndarray, r_out: np.ndarray, r_in: np.ndarray,
                  points_world_mm: np.ndarray, radii_mm: tuple, params: SelfCheckParams) -> tuple:
     """``(tip_off_foreground_px, beyond_tip_contrast)`` of one view, each None where not measured.
@@ -930,7 +995,7 @@ def _tip_figures(view: _ViewModel, camera, gray: np.ndarray, gain_offset: list, 
     if params.tip_probe_px > 0 and not view.binary and vis[np.flatnonzero(finite)[-1]]:
         # The tip itself is in view (not behind the base): does the tube go on beyond it?
         r_tip = float(r_out[finite][-1])
-        beyond = _beyond_tip(view, gray, gain_offset, uv[finite], r_tip, float(r_in[finite][-1]), params,
+        beyond = _beyond_tip(view, gray, lighting, uv[finite], r_tip, float(r_in[finite][-1]), params,
                              r_tip * _end_face_share(camera, points_world_mm, 2.0 * radii_mm[0]))
     return tip_off, beyond
 
@@ -984,7 +1049,7 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     uvv = uv[vis]
     roi = [max(0, int(np.floor(uvv[:, 0].min())) - pad), max(0, int(np.floor(uvv[:, 1].min())) - pad),
            min(W, int(np.ceil(uvv[:, 0].max())) + pad + 1), min(H, int(np.ceil(uvv[:, 1].max())) + pad + 1)]
-    roi, band, fg, labels, stats, band_lab, touching, gain_offset = _band_and_foreground(view, camera, gray, uv[finite], roi,
+    roi, band, fg, labels, stats, band_lab, touching, lighting = _band_and_foreground(view, camera, gray, uv[finite], roi,
                                                                                           r_band, params)
     x0, y0 = roi[0], roi[1]
     if _DEBUG is not None:
@@ -1011,12 +1076,12 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     on = on_fg = _near_foreground(fg, uvr, params.on_foreground_tolerance_px)
     normals = _normals(uv[finite])[vis[finite]]
     if params.contrast_window_px > 0 and not view.binary and not on.all():
-        on = on | _contrast_support(view, gray, gain_offset, uvv, normals, r_out[vis], r_in[vis], params)
+        on = on | _contrast_support(view, gray, lighting, uvv, normals, r_out[vis], r_in[vis], params)
     off = float(np.mean(~on))
-    tip_off, beyond = _tip_figures(view, camera, gray, gain_offset, uv, finite, vis, on, on_fg, r_out, r_in, points_world_mm,
+    tip_off, beyond = _tip_figures(view, camera, gray, lighting, uv, finite, vis, on, on_fg, r_out, r_in, points_world_mm,
                                    radii_mm, params)
     if _DEBUG is not None:
-        _DEBUG[camera.name].update(on=on, gain_offset=gain_offset)
+        _DEBUG[camera.name].update(on=on, lighting=lighting)
     rms, local = _centerline_figures(fg, uvr, normals, r_out[vis], r_in[vis], params)
     return {"unexplained_fraction": unexplained, "unexplained_px": unexplained_px, "off_foreground_fraction": off,
             "centerline_rms_px": rms, "centerline_max_px": local, "visible_px": none["visible_px"], "unseen_px": unseen_px, "beyond_tip_contrast": beyond,
