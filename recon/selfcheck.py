@@ -934,6 +934,10 @@ def _drop_specks(band: np.ndarray, labels: np.ndarray, stats: np.ndarray, touchi
     not_band = (band == 0).view(np.uint8)
     dist = cv2.distanceTransform(not_band, cv2.DIST_L2, 3)
     reach = params.speck_reach * 2.0 * r_out_median_px + params.explain_tolerance_px
+    # A piece with the area of max_unexplained_px of the whole tube's width is tube, however near the band
+    # it stays: a thick tube's 20 px beyond a backbone that hooked away from it (wide-2-15 frame 0, 577 px)
+    # reaches less than a diameter from the band.
+    big = params.max_unexplained_px * 2.0 * r_out_median_px
     for lab in touching:
         lx, ly, lw, lh = (int(v) for v in stats[lab, :4])
         m = (labels[ly:ly + lh, lx:lx + lw] == lab).view(np.uint8)
@@ -943,7 +947,7 @@ def _drop_specks(band: np.ndarray, labels: np.ndarray, stats: np.ndarray, touchi
         for q in range(1, n_p):
             qx, qy, qw, qh = (int(v) for v in st_p[q, :4])
             mq = lab_p[qy:qy + qh, qx:qx + qw] == q
-            if float(dsub[qy:qy + qh, qx:qx + qw][mq].max()) < reach:
+            if float(dsub[qy:qy + qh, qx:qx + qw][mq].max()) < reach and st_p[q, cv2.CC_STAT_AREA] < big:
                 n_unexplained -= int(st_p[q, cv2.CC_STAT_AREA])
                 continue
             py, px = np.nonzero(mq)
