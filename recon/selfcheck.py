@@ -383,12 +383,38 @@ class Lighting:
         return g, o
 
     def normalize(self, values_dn, u, v) -> np.ndarray:
-        """Gray levels at pixels ``(u, v)`` (broadcast) brought to the background's lighting: ``(value - offset) / gain``."""
+        """Gray levels at pixels ``(u, v)`` brought to the background's lighting: ``(value - offset) / gain``.
+
+        Parameters
+        ----------
+        values_dn : array
+            Gray levels of the frame.
+        u, v : arrays
+            Their pixels (image frame, px; broadcast against ``values_dn``).
+
+        Returns
+        -------
+        float32 array
+            The gray levels under the background mean's lighting.
+        """
         g, o = self._planes(u, v)
         return (np.asarray(values_dn, np.float32) - o) / g
 
     def normalize_roi(self, image_dn: np.ndarray, x0: int, y0: int) -> np.ndarray:
-        """:meth:`normalize` of an image region whose top-left pixel is ``(x0, y0)``: (h, w) float32."""
+        """:meth:`normalize` of an image region.
+
+        Parameters
+        ----------
+        image_dn : (h, w) array
+            The region's gray levels.
+        x0, y0 : int
+            Its top-left pixel in the image (px).
+
+        Returns
+        -------
+        (h, w) float32 array
+            The region under the background mean's lighting.
+        """
         h, w = image_dn.shape
         g, o = self._planes(np.arange(x0, x0 + w)[None, :], np.arange(y0, y0 + h)[:, None])
         return (image_dn.astype(np.float32) - o) / g
