@@ -376,11 +376,11 @@ class Lighting:
     height: int = 1
 
     def _planes(self, u, v) -> tuple:
+        """``(gain, offset)`` at pixels ``(u, v)`` (broadcast; float32 arrays, or float32 scalars where flat)."""
         x = np.asarray(u, np.float32) / np.float32(self.width) - np.float32(0.5)
         y = np.asarray(v, np.float32) / np.float32(self.height) - np.float32(0.5)
-        g = np.float32(self.gain) + np.float32(self.gain_u) * x + np.float32(self.gain_v) * y
-        o = np.float32(self.offset_dn) + np.float32(self.offset_u_dn) * x + np.float32(self.offset_v_dn) * y
-        return g, o
+        return (_plane(self.gain, self.gain_u, self.gain_v, x, y),
+                _plane(self.offset_dn, self.offset_u_dn, self.offset_v_dn, x, y))
 
     def normalize(self, values_dn, u, v) -> np.ndarray:
         """Gray levels at pixels ``(u, v)`` brought to the background's lighting: ``(value - offset) / gain``.
@@ -417,7 +417,20 @@ class Lighting:
         """
         h, w = image_dn.shape
         g, o = self._planes(np.arange(x0, x0 + w)[None, :], np.arange(y0, y0 + h)[:, None])
-        return (image_dn.astype(np.float32) - o) / g
+        out = image_dn.astype(np.float32)
+        out -= o
+        if np.ndim(g) or g != 1.0:  # a flat unit gain (uniform backdrops) divides by nothing
+            out /= g
+        return out
+
+
+def _plane(c0: float, cu: float, cv: float, x: np.ndarray, y: np.ndarray):
+    """``c0 + cu x + cv y`` in float32 (broadcast): a scalar where the plane is flat, and where ``x`` and ``y``
+    are a row and a column, their outer sum (one (h, w) array, not three)."""
+    c0, cu, cv = np.float32(c0), np.float32(cu), np.float32(cv)
+    if cu == 0.0 and cv == 0.0:
+        return c0
+    return np.add(c0 + cu * x, cv * y, dtype=np.float32)
 
 
 def fit_lighting(image_dn: np.ndarray, background_dn: np.ndarray, u: np.ndarray, v: np.ndarray, shape: tuple,
