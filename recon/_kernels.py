@@ -27,8 +27,8 @@ _distort_nb = njit(cache=True, nogil=True, inline="always")(distortion.distort_x
 _untilt_nb = njit(cache=True, nogil=True, inline="always")(distortion.untilt_xy)
 _undistort_step_nb = njit(cache=True, nogil=True, inline="always")(distortion.undistort_step)
 
-__all__ = ["profile_edges_nb", "profiles_at_seeds_nb", "profile_values_nb", "coarse_foreground_nb", "bfs_path_nb", "rays_nb",
-           "ridge_hits_nb", "near_any_nb", "spline_fit_nb", "spline_eval_nb", "spline_robust_nb", "frame_coefficients_nb",
+__all__ = ["profile_edges_nb", "profiles_at_seeds_nb", "profile_values_nb", "coarse_foreground_nb", "coarse_foreground_tiles_nb",
+           "bfs_path_nb", "rays_nb", "ridge_hits_nb", "near_any_nb", "spline_fit_nb", "spline_eval_nb", "spline_robust_nb", "frame_coefficients_nb",
            "frame_shift_nb", "tip_along_axis_nb", "project_nb"]
 
 
@@ -253,6 +253,86 @@ def coarse_foreground_nb(frame, factor, lo, hi, rx0, ry0, rx1, ry1, mean_c, basi
         fg_row[y] = n_fg > 0
     best = _abs_pass(frame, factor, lo, hi, rx0, ry0, mask, fg_row, coarse_stack, thr_c, coeff, reach, best)
     return mask, best
+
+
+@njit(cache=True, nogil=True)
+def coarse_foreground_tiles_nb(frame, factor, lo, hi, mean_c, basis_c, coarse_stack, thr_c, coeff, reach, tile, seed_box):
+    """:func:`coarse_foreground_nb` of the whole image, computed only in the tiles a foreground region can reach
+    from ``seed_box``.
+
+    The coarse image is cut into ``tile`` x ``tile`` tiles. Those meeting ``seed_box`` = (x0, y0, x1, y1)
+    (coarse px) are computed first; a tile's neighbour (8-connected) follows wherever the tile has
+    foreground on the border they share. Each tile is computed with a margin of ``reach`` px, so its
+    second pass sees every first-pass pixel it depends on: the mask in the computed tiles is the whole
+    image's, and every foreground region that meets ``seed_box`` lies entirely in computed tiles.
+
+    Parameters
+    ----------
+    frame, factor, lo, hi, mean_c, basis_c, coarse_stack, thr_c, coeff, reach
+        As :func:`coarse_foreground_nb` (the whole image: no region of interest).
+    tile : int
+        Coarse px a side of a tile.
+    seed_box : (4,) int64 array
+        ``(x0, y0, x1, y1)`` coarse px (x1, y1 exclusive): where the regions of interest start.
+
+    Returns
+    -------
+    mask : (Hc, Wc) uint8 array
+        1 = foreground; 0 also in the tiles not computed.
+    best : float
+        The largest excess over the threshold in the computed tiles and their margins (gray levels).
+    n_tiles : int
+        Tiles computed.
+    """
+    hc, wc = mean_c.shape
+    nty = (hc + tile - 1) // tile
+    ntx = (wc + tile - 1) // tile
+    mask = np.zeros((hc, wc), np.uint8)
+    state = np.zeros((nty, ntx), np.uint8)  # 1 queued, 2 computed
+    queue = np.empty(nty * ntx, np.int64)
+    n_q = 0
+    for ty in range(max(0, seed_box[1] // tile), min(nty, (seed_box[3] - 1) // tile + 1)):
+        for tx in range(max(0, seed_box[0] // tile), min(ntx, (seed_box[2] - 1) // tile + 1)):
+            state[ty, tx] = 1
+            queue[n_q] = ty * ntx + tx
+            n_q += 1
+    best = -1e30
+    head = 0
+    while head < n_q:
+        ty, tx = divmod(queue[head], ntx)
+        head += 1
+        state[ty, tx] = 2
+        y0, x0 = ty * tile, tx * tile
+        y1, x1 = min(hc, y0 + tile), min(wc, x0 + tile)
+        my0, mx0 = max(0, y0 - reach), max(0, x0 - reach)
+        my1, mx1 = min(hc, y1 + reach), min(wc, x1 + reach)
+        m, b = coarse_foreground_nb(frame, factor, lo, hi, mx0, my0, mx1, my1, mean_c, basis_c, coarse_stack, thr_c,
+                                    coeff, reach)
+        best = max(best, b)
+        mask[y0:y1, x0:x1] = m[y0 - my0:y1 - my0, x0 - mx0:x1 - mx0]
+        t = mask[y0:y1, x0:x1]
+        h, w = y1 - y0, x1 - x0
+        for dy in range(-1, 2):
+            for dx in range(-1, 2):
+                ny, nx = ty + dy, tx + dx
+                if (dy == 0 and dx == 0) or ny < 0 or ny >= nty or nx < 0 or nx >= ntx or state[ny, nx] != 0:
+                    continue
+                # Foreground on the border shared with that neighbour (a corner pixel for a diagonal one).
+                ra, rb = (0, 1) if dy < 0 else ((h - 1, h) if dy > 0 else (0, h))
+                ca, cb = (0, 1) if dx < 0 else ((w - 1, w) if dx > 0 else (0, w))
+                hit = False
+                for yy in range(ra, rb):
+                    for xx in range(ca, cb):
+                        if t[yy, xx]:
+                            hit = True
+                            break
+                    if hit:
+                        break
+                if hit:
+                    state[ny, nx] = 1
+                    queue[n_q] = ny * ntx + nx
+                    n_q += 1
+    return mask, best, head
 
 
 @njit(cache=True, nogil=True)
