@@ -161,6 +161,52 @@ def test_jitter_on_a_textured_backdrop_is_not_foreground():
     assert fg0.mean() > 5 * max(fg.mean(), 1e-4)
 
 
+def _ramp(h: int, w: int, gain: float, slope_u: float, slope_v: float) -> np.ndarray:
+    """A gain field: ``gain`` at the centre, ``slope_u`` / ``slope_v`` across the width / height."""
+    v, u = np.mgrid[0:h, 0:w]
+    return gain + slope_u * (u / w - 0.5) + slope_v * (v / h - 0.5)
+
+
+def test_fit_lighting_recovers_a_ramp_and_drops_the_robot():
+    import cv2
+
+    rng = np.random.default_rng(4)
+    h, w = 240, 320
+    textured = cv2.GaussianBlur(rng.uniform(30, 220, (h, w)).astype(np.float32), (0, 0), 3.0)
+    for background, model in ((textured, "gain plane"), (np.full((h, w), 128.0, np.float32), "offset plane")):
+        lit = background * _ramp(h, w, 1.1, 0.12, -0.08) + 5.0 + rng.normal(0, 1.0, (h, w))
+        lit[100:110, :] = 20.0  # a dark robot across a twentieth of the samples
+        v, u = np.mgrid[0:h:4, 0:w:4]
+        light = fit_lighting(lit[::4, ::4].ravel(), background[::4, ::4].ravel(), u.ravel(), v.ravel(), (h, w))
+        back = light.normalize_roi(lit.astype(np.float32), 0, 0)
+        off_robot = np.ones((h, w), bool)
+        off_robot[100:110] = False
+        # Under a single gain and offset the ramp leaves 10-15 gray levels; the planes leave the noise.
+        assert np.abs(back - background)[off_robot].max() < 6.0, model
+        assert np.abs(back - background)[~off_robot].min() > 50.0, model
+
+
+def test_the_band_of_a_plain_backdrop_under_ramped_lighting_stays_narrow():
+    # Six background frames, each lit with its own ramp (up to 12 % at the border, as the twin draws): the
+    # ramps are lighting, not the backdrop's variation, and must not widen the band.
+    rng = np.random.default_rng(5)
+    h, w = 120, 160
+    frames = [np.clip(np.rint(140.0 * _ramp(h, w, rng.uniform(0.9, 1.1), *rng.uniform(-0.24, 0.24, 2))
+                              + rng.normal(0, 1.5, (h, w))), 0, 255).astype(np.uint8) for _ in range(N_BACKGROUND)]
+    cam = Camera("side", w, h, np.array([[500.0, 0, w / 2], [0, 500.0, h / 2], [0, 0, 1]]),
+                 T_cam_world=np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 300], [0, 0, 0, 1]]))
+    rig = RigCalibration({"side": cam}, base_point_world_mm=[0.0, 0.0, 0.0], insertion_axis_world=[0.0, 0.0, 1.0])
+    view = prepare_selfcheck(rig, {"side": np.stack(frames)}).views["side"]
+    p = SelfCheckParams()
+    # The band: the noise's spread over six frames, 3 sigmas and the margin either side (~2 x 13 gray levels).
+    assert np.percentile(view.hi - view.lo, 99) < 2 * (3 * 1.5 * 2 + p.margin_dn) + 4
+    # A tube 12 gray levels darker than the backdrop, under a frame's own ramp, is foreground.
+    frame = 140.0 * _ramp(h, w, 1.05, 0.2, 0.1) + rng.normal(0, 1.5, (h, w))
+    frame[60:64, 20:140] -= 12.0 * 1.05
+    fg = foreground_roi(view, np.clip(np.rint(frame), 0, 255).astype(np.uint8), (0, 0, w, h))
+    assert fg[60:64, 20:140].mean() > 0.5 and fg[:50].mean() < 0.01
+
+
 def test_bad_input_is_a_one_line_error(model, rendered):
     with pytest.raises(ValueError, match="top: image is 10x10"):
         check_backbone(model, {**rendered.frame.images, "top": np.zeros((10, 10), np.uint8)}, rendered.truth, rendered.radii)
