@@ -382,6 +382,24 @@ class Lighting:
         return (_plane(self.gain, self.gain_u, self.gain_v, x, y),
                 _plane(self.offset_dn, self.offset_u_dn, self.offset_v_dn, x, y))
 
+    def relight(self, background_dn, u, v) -> np.ndarray:
+        """Background gray levels at pixels ``(u, v)`` as this lighting shows them: ``gain * background + offset``.
+
+        Parameters
+        ----------
+        background_dn : array
+            Gray levels of the background mean.
+        u, v : arrays
+            Their pixels (image frame, px; broadcast against ``background_dn``).
+
+        Returns
+        -------
+        float32 array
+            The background under this frame's lighting.
+        """
+        g, o = self._planes(u, v)
+        return np.asarray(background_dn, np.float32) * g + o
+
     def normalize(self, values_dn, u, v) -> np.ndarray:
         """Gray levels at pixels ``(u, v)`` brought to the background's lighting: ``(value - offset) / gain``.
 
@@ -460,20 +478,17 @@ def fit_lighting(image_dn: np.ndarray, background_dn: np.ndarray, u: np.ndarray,
     """
     i = np.asarray(image_dn, np.float64).ravel()
     b = np.asarray(background_dn, np.float64).ravel()
+    u, v = np.asarray(u).ravel(), np.asarray(v).ravel()
     h, w = shape
-    x = np.asarray(u, np.float64).ravel() / w - 0.5
-    y = np.asarray(v, np.float64).ravel() / h - 0.5
-    flat = Lighting(offset_dn=float(np.median(i - b)) if i.size else 0.0, width=w, height=h)
+    light = Lighting(offset_dn=float(np.median(i - b)) if i.size else 0.0, width=w, height=h)
     if i.size < 8:
-        return flat
+        return light
     keep = np.ones(i.size, bool)
-    light = flat
     for _ in range(iterations):
         if keep.sum() < 8:
             break
-        light = _lighting_lsq(i[keep], b[keep], x[keep], y[keep], w, h)
-        g, o = light._planes((x + 0.5) * w, (y + 0.5) * h)
-        res = i - (g * b + o)
+        light = _lighting_lsq(i[keep], b[keep], u[keep] / w - 0.5, v[keep] / h - 0.5, w, h)
+        res = i - light.relight(b, u, v)
         mad = float(np.median(np.abs(res[keep] - np.median(res[keep]))))
         keep = np.abs(res) <= 3.0 * max(1.4826 * mad, 1.0) + 2.0
     return light
@@ -589,14 +604,13 @@ def foreground_roi(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.n
     (h, w) bool
         Foreground; False behind the robot base.
     """
-    return _foreground_u8(view, gray, roi, None if exclude is None else np.asarray(exclude, np.uint8)) > 0
+    return _foreground_u8(view, gray, roi, None if exclude is None else np.asarray(exclude, np.uint8))[0] > 0
 
 
-def _foreground_u8(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.ndarray | None = None,
-                   lighting_out: list | None = None) -> np.ndarray:
+def _foreground_u8(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.ndarray | None = None) -> tuple:
     """:func:`foreground_roi` as a (h, w) uint8 mask (255 foreground), in OpenCV passes; ``exclude`` nonzero = left out.
 
-    ``lighting_out``: a list that receives the fitted :class:`Lighting`.
+    Returns ``(mask, lighting)``: the mask and the fitted :class:`Lighting`.
     """
     x0, y0, x1, y1 = roi
     img = gray[y0:y1, x0:x1]
@@ -610,13 +624,11 @@ def _foreground_u8(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.n
         sub &= ~view.behind[y0:y1:step, x0:x1:step]
     vs, us = np.mgrid[y0:y1:step, x0:x1:step]
     light = fit_lighting(img[::step, ::step][sub], mean[::step, ::step][sub], us[sub], vs[sub], gray.shape)
-    if lighting_out is not None:
-        lighting_out[:] = [light]
     norm = light.normalize_roi(img, x0, y0)
     fg = cv2.bitwise_not(cv2.inRange(norm, view.lo[y0:y1, x0:x1], view.hi[y0:y1, x0:x1]))
     if view.keep is not None:
         fg = cv2.bitwise_and(fg, view.keep[y0:y1, x0:x1])
-    return fg
+    return fg, light
 
 
 _CLOSE_KERNEL = np.ones((3, 3), np.uint8)
@@ -741,7 +753,7 @@ def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_
     return out
 
 
-def _contrast_profiles(view: _ViewModel, gray: np.ndarray, lighting: list, uv: np.ndarray, normals: np.ndarray,
+def _contrast_profiles(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.ndarray, normals: np.ndarray,
                        r_out_px: np.ndarray, r_in_px: np.ndarray, params: SelfCheckParams) -> tuple:
     """Per point: the image's difference from the background across the tube's middle, and just beside the band.
 
@@ -750,7 +762,6 @@ def _contrast_profiles(view: _ViewModel, gray: np.ndarray, lighting: list, uv: n
     point (``centre``), and the most of 5 samples over ``2 r_in`` just outside
     the band, on the quieter of the two sides (``beside``).
     """
-    light = lighting[0] if lighting else Lighting(width=gray.shape[1], height=gray.shape[0])
     ri = np.maximum(r_in_px, 1.0)
 
     h, w = gray.shape
@@ -762,7 +773,7 @@ def _contrast_profiles(view: _ViewModel, gray: np.ndarray, lighting: list, uv: n
         ui, vi = u[ins], v[ins]
         half = np.maximum(0.5 * (view.hi[vi, ui] - view.lo[vi, ui]), 1.0)
         out = np.full(u.shape, np.nan, np.float32)
-        out[ins] = np.abs(light.normalize(gray[vi, ui], ui, vi) - view.mean[vi, ui]) / half
+        out[ins] = np.abs(lighting.normalize(gray[vi, ui], ui, vi) - view.mean[vi, ui]) / half
         return out
 
     def most(x):  # max across, -inf where all outside the image
@@ -777,7 +788,7 @@ def _contrast_profiles(view: _ViewModel, gray: np.ndarray, lighting: list, uv: n
     return centre, beside
 
 
-def _contrast_support(view: _ViewModel, gray: np.ndarray, lighting: list, uv: np.ndarray, normals: np.ndarray,
+def _contrast_support(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.ndarray, normals: np.ndarray,
                       r_out_px: np.ndarray, r_in_px: np.ndarray, params: SelfCheckParams) -> np.ndarray:
     """(m,) bool: centerline samples where the image differs from the background along the tube more than beside it.
 
@@ -812,7 +823,7 @@ def _running_median(x: np.ndarray, win: int) -> np.ndarray:
     return np.median(np.lib.stride_tricks.sliding_window_view(xp, win), axis=1)
 
 
-def _beyond_tip(view: _ViewModel, gray: np.ndarray, lighting: list, uv_curve: np.ndarray, r_out_tip: float,
+def _beyond_tip(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv_curve: np.ndarray, r_out_tip: float,
                 r_in_tip: float, params: SelfCheckParams, end_face_px: float = 0.0) -> float | None:
     """Tube contrast on the backbone's continuation beyond its reprojected tip, over what would flag it (> 1: the tube goes on).
 
@@ -918,8 +929,8 @@ def _band_and_foreground(view: _ViewModel, camera, gray: np.ndarray, uv_curve: n
     Returns ``(roi, band, fg, labels, stats, band_lab, touching, lighting)``: the final
     region ``[x0, y0, x1, y1]`` (px), the band and foreground masks (uint8, region
     coordinates), the foreground's connected components with their stats, the
-    component labels under the band, the labels touching it, and a list holding the
-    fitted :class:`Lighting`.
+    component labels under the band, the labels touching it, and the fitted
+    :class:`Lighting`.
     """
     W, H = camera.width, camera.height
     thickness = 2 * int(math.ceil(r_band)) + 1
@@ -933,8 +944,7 @@ def _band_and_foreground(view: _ViewModel, camera, gray: np.ndarray, uv_curve: n
         pl = np.rint((poly - [x0, y0]) * 16).astype(np.int32)
         cv2.polylines(band, [pl.reshape(-1, 1, 2)], False, 1, thickness=thickness, lineType=cv2.LINE_8, shift=4)
         _cut_tip_cap(band, uv_curve - [x0, y0], r_band, params.explain_tolerance_px)
-        lighting = []
-        fg = _foreground_u8(view, gray, tuple(roi), exclude=band, lighting_out=lighting)
+        fg, lighting = _foreground_u8(view, gray, tuple(roi), exclude=band)
         # Close 1-px cracks (specular highlights as bright as the backdrop) before measuring runs and regions.
         fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, _CLOSE_KERNEL)
         if view.keep is not None:
@@ -1017,7 +1027,7 @@ def _unseen_share_of(camera, others, ys: np.ndarray, xs: np.ndarray, uvv: np.nda
     return _unseen_share(camera, list(others), ys, xs, uv_g, depth_g, params)
 
 
-def _tip_figures(view: _ViewModel, camera, gray: np.ndarray, lighting: list, uv: np.ndarray, finite: np.ndarray,
+def _tip_figures(view: _ViewModel, camera, gray: np.ndarray, lighting: Lighting, uv: np.ndarray, finite: np.ndarray,
                  vis: np.ndarray, on: np.ndarray, on_fg: np.ndarray, r_out: np.ndarray, r_in: np.ndarray,
                  points_world_mm: np.ndarray, radii_mm: tuple, params: SelfCheckParams) -> tuple:
     """``(tip_off_foreground_px, beyond_tip_contrast)`` of one view, each None where not measured.

@@ -318,8 +318,7 @@ def _faint_inner_tube(rendered, k: float):
         v, u = np.nonzero(lab[::7, ::7] == 0)
         light = fit_lighting(img[::7, ::7][v, u], mean[::7, ::7][v, u], 7 * u, 7 * v, img.shape)
         vv, uu = np.nonzero(inner)
-        g, o = light._planes(uu, vv)
-        lit = g * mean[inner] + o
+        lit = light.relight(mean[inner], uu, vv)
         out = img.astype(np.float32)
         out[inner] = lit + k * (out[inner] - lit)
         images[c] = np.clip(np.rint(out), 0, 255).astype(np.uint8)
