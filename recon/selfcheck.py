@@ -377,8 +377,7 @@ class Lighting:
 
     def _planes(self, u, v) -> tuple:
         """``(gain, offset)`` at pixels ``(u, v)`` (broadcast; float32 arrays, or float32 scalars where flat)."""
-        x = np.asarray(u, np.float32) / np.float32(self.width) - np.float32(0.5)
-        y = np.asarray(v, np.float32) / np.float32(self.height) - np.float32(0.5)
+        x, y = _unit_coords(u, v, self.width, self.height, np.float32)
         return (_plane(self.gain, self.gain_u, self.gain_v, x, y),
                 _plane(self.offset_dn, self.offset_u_dn, self.offset_v_dn, x, y))
 
@@ -442,6 +441,12 @@ class Lighting:
         return out
 
 
+def _unit_coords(u, v, width: int, height: int, dtype) -> tuple:
+    """Pixels ``(u, v)`` (image frame, px) as the coordinates the lighting planes are written in: ``u / width - 0.5``
+    and ``v / height - 0.5`` (-0.5 to 0.5 across the image), in ``dtype``."""
+    return (np.asarray(u, dtype) / dtype(width) - dtype(0.5), np.asarray(v, dtype) / dtype(height) - dtype(0.5))
+
+
 def _plane(c0: float, cu: float, cv: float, x: np.ndarray, y: np.ndarray):
     """``c0 + cu x + cv y`` in float32 (broadcast): a scalar where the plane is flat, and where ``x`` and ``y``
     are a row and a column, their outer sum (one (h, w) array, not three)."""
@@ -480,6 +485,7 @@ def fit_lighting(image_dn: np.ndarray, background_dn: np.ndarray, u: np.ndarray,
     b = np.asarray(background_dn, np.float64).ravel()
     u, v = np.asarray(u).ravel(), np.asarray(v).ravel()
     h, w = shape
+    x, y = _unit_coords(u, v, w, h, np.float64)
     light = Lighting(offset_dn=float(np.median(i - b)) if i.size else 0.0, width=w, height=h)
     if i.size < 8:
         return light
@@ -487,7 +493,7 @@ def fit_lighting(image_dn: np.ndarray, background_dn: np.ndarray, u: np.ndarray,
     for _ in range(iterations):
         if keep.sum() < 8:
             break
-        light = _lighting_lsq(i[keep], b[keep], u[keep] / w - 0.5, v[keep] / h - 0.5, w, h)
+        light = _lighting_lsq(i[keep], b[keep], x[keep], y[keep], w, h)
         res = i - light.relight(b, u, v)
         mad = float(np.median(np.abs(res[keep] - np.median(res[keep]))))
         keep = np.abs(res) <= 3.0 * max(1.4826 * mad, 1.0) + 2.0
