@@ -13,6 +13,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from twin.gl import available_platforms
 
@@ -87,3 +89,48 @@ def test_shaders_are_compiled_once(platform):
     seen = json.loads(out.stdout.strip().splitlines()[-1])
     assert seen["platform"] == platform
     assert seen["programs"][0] == seen["programs"][1], seen
+
+
+def _filled_reference(rgb, z, coverage):
+    """The edge fill as box filters over the whole window (how :meth:`SetRenderer._look` first did it), or None if pixels stay unfilled."""
+    import cv2
+
+    sampled = (z > 0).astype(np.float32)
+    colour = rgb.astype(np.float32) * sampled[..., None]
+    filled = colour
+    missing = (coverage > 0) & (sampled == 0)
+    for k in (3, 7):
+        n = cv2.boxFilter(sampled, -1, (k, k), normalize=False)
+        mean = cv2.boxFilter(colour, -1, (k, k), normalize=False) / np.maximum(n, 1.0)[..., None]
+        found = missing & (n > 0)
+        filled = np.where(found[..., None], mean, filled)
+        missing &= ~found
+    return None if missing.any() else filled * coverage[..., None]
+
+
+@given(
+    shape=st.tuples(st.integers(1, 23), st.integers(1, 23)),
+    drawn=st.floats(0.0, 1.0),
+    seed=st.integers(0, 2**31 - 1),
+)
+def test_edge_fill_is_the_box_filters_value_for_value(shape, drawn, seed):
+    """The one-sample lit pass's edge fill equals box filters over the window (OpenCV's reflected borders), bit for bit.
+
+    Fails if the kernel reads its neighbourhoods past the borders in another way, takes
+    the 7x7 mean where a 3x3 one exists, or forgets that only covered pixels are filled.
+    """
+    from twin.render import _premultiply_filled_nb
+
+    rng = np.random.default_rng(seed)
+    h, w = shape
+    rgb = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    z = np.where(rng.random((h, w)) < drawn, rng.uniform(100, 400, (h, w)), 0.0).astype(np.float32)
+    coverage = np.where(rng.random((h, w)) < 0.7, rng.random((h, w)), 0.0).astype(np.float32)
+    out = np.full((h, w, 3), np.nan, np.float32)
+    # pyrender hands back its buffers flipped upside down: views with negative row strides.
+    flipped_rgb, flipped_z = np.ascontiguousarray(rgb[::-1])[::-1], np.ascontiguousarray(z[::-1])[::-1]
+    left = _premultiply_filled_nb(flipped_rgb, flipped_z, coverage, out)
+    expected = _filled_reference(rgb, z, coverage)
+    assert (left == 0) == (expected is not None)
+    if expected is not None:
+        assert np.array_equal(out, expected)
