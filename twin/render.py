@@ -170,6 +170,43 @@ def _solid(m: trimesh.Trimesh, color, metallic=0.0, roughness=0.6, smooth=False)
     return pyrender.Mesh.from_trimesh(m, material=mat, smooth=smooth)
 
 
+class _InsertionOrdered(dict):
+    """A set of pyrender nodes that iterates in the order they were added.
+
+    pyrender keeps a scene's mesh and light nodes in sets, which iterate in the order
+    of the nodes' hashes, their memory addresses: a new order in every process. It
+    draws nodes at the same distance in that order (the set's planes all sit at the
+    origin), so where two surfaces of the set are coplanar the depth test's winner,
+    and a few pixels of the image, changed from run to run; the lights' order changes
+    the shader's sums as well. With these, a scene renders the same pixels every time.
+    """
+
+    def add(self, node) -> None:
+        self[node] = None
+
+    def remove(self, node) -> None:
+        del self[node]
+
+    def discard(self, node) -> None:
+        self.pop(node, None)
+
+    def copy(self) -> "_InsertionOrdered":
+        return _InsertionOrdered(self)
+
+    def __or__(self, other) -> "_InsertionOrdered":
+        out = self.copy()
+        out.update(dict.fromkeys(other))
+        return out
+
+
+def _ordered_scene(**kwargs) -> pyrender.Scene:
+    """An empty pyrender scene whose mesh and light nodes iterate in the order they are added (:class:`_InsertionOrdered`)."""
+    scene = pyrender.Scene(**kwargs)
+    for name in ("_mesh_nodes", "_point_light_nodes", "_spot_light_nodes", "_directional_light_nodes"):
+        setattr(scene, name, _InsertionOrdered())
+    return scene
+
+
 def _coverage(seg: np.ndarray) -> np.ndarray:
     """The robot's coverage (h, w) float32 in [0, 1] of each pixel of a flat label pass ``seg`` (h, w, 3) uint8.
 
@@ -276,7 +313,7 @@ class SetRenderer:
             self._maps[cam.name] = self._distortion_maps(cam)
         d = scene.dressing
         # Transparent clear colour: passes of a subset of meshes come back with their coverage in alpha.
-        self.pr_scene = pyrender.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=[d.ambient] * 3)
+        self.pr_scene = _ordered_scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=[d.ambient] * 3)
         self._add_set(scene)
         self._set_meshes = list(self.pr_scene.meshes)
         self._cam_node = None
