@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 import trimesh
+from numba import njit
 
 from recon.tubemesh import swept_rings
 
 from .robot import Backbone, Joints, Robot
 
-__all__ = ["tube_meshes", "swept_tube", "sample_backbone", "box_mesh", "cylinder_mesh", "plane_mesh"]
+__all__ = ["tube_meshes", "swept_tube", "vertex_normals", "sample_backbone", "box_mesh", "cylinder_mesh", "plane_mesh"]
 
 
 def sample_backbone(backbone: Backbone, s_mm: np.ndarray) -> tuple:
@@ -116,3 +117,59 @@ def plane_mesh(center_mm, u_axis, v_axis, size_u_mm: float, size_v_mm: float) ->
     faces = np.array([[0, 1, 2], [0, 2, 3]])
     uv = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
     return verts, faces, uv, np.cross(u, v)
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Smooth-shading normals (n, 3): each vertex's faces' unit normals weighted by their angle at it, normalized.
+
+    trimesh's ``vertex_normals`` (the same weighting, to rounding) in one compiled
+    pass: a tube's normals took 2.2 ms through trimesh's face angles and sparse sums,
+    at every frame.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float array
+    faces : (m, 3) int array, wound counter-clockwise seen from outside
+    """
+    out = np.zeros((len(vertices), 3))
+    _angle_weighted_normals_nb(np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(faces, dtype=np.int64), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _corner_angle(ax, ay, az, bx, by, bz):  # pragma: no cover - compiled
+    """Angle (rad) between the edge vectors a and b at one corner."""
+    la = np.sqrt(ax * ax + ay * ay + az * az)
+    lb = np.sqrt(bx * bx + by * by + bz * bz)
+    if la == 0.0 or lb == 0.0:
+        return 0.0
+    return np.arccos(min(max((ax * bx + ay * by + az * bz) / (la * lb), -1.0), 1.0))
+
+
+@njit(cache=True, nogil=True)
+def _angle_weighted_normals_nb(v, faces, out):  # pragma: no cover - compiled
+    """Accumulate angle-weighted unit face normals into ``out`` (n, 3) and normalize its rows."""
+    for f in range(faces.shape[0]):
+        i, j, k = faces[f, 0], faces[f, 1], faces[f, 2]
+        e1 = v[j] - v[i]
+        e2 = v[k] - v[i]
+        e3 = v[k] - v[j]
+        nx = e1[1] * e2[2] - e1[2] * e2[1]
+        ny = e1[2] * e2[0] - e1[0] * e2[2]
+        nz = e1[0] * e2[1] - e1[1] * e2[0]
+        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if ln == 0.0:  # a degenerate face has no normal
+            continue
+        nx, ny, nz = nx / ln, ny / ln, nz / ln
+        a_i = _corner_angle(e1[0], e1[1], e1[2], e2[0], e2[1], e2[2])
+        a_j = _corner_angle(-e1[0], -e1[1], -e1[2], e3[0], e3[1], e3[2])
+        a_k = _corner_angle(-e2[0], -e2[1], -e2[2], -e3[0], -e3[1], -e3[2])
+        for idx, a in ((i, a_i), (j, a_j), (k, a_k)):
+            out[idx, 0] += nx * a
+            out[idx, 1] += ny * a
+            out[idx, 2] += nz * a
+    for r in range(out.shape[0]):
+        ln = np.sqrt(out[r, 0] ** 2 + out[r, 1] ** 2 + out[r, 2] ** 2)
+        if ln > 0.0:
+            out[r] /= ln
+    return out
