@@ -124,3 +124,16 @@ def test_background_frames_have_no_robot(paper_twin):
     b = paper_twin.background(0)
     assert b.labels is None and b.joints is None
     assert b.images["side"].shape == (768, 1024) and b.images["side"].dtype == np.uint8
+
+
+def test_tube_normals_are_trimeshs_angle_weighted_normals(paper_scene):
+    """The renderer's smooth normals equal trimesh's (angle-weighted face normals), caps and bends included.
+
+    Fails if the faces' angles are not the weights (e.g. plain sums), or a corner's angle is taken at the wrong vertex.
+    """
+    from twin.kinematics import solve
+    from twin.mesh import vertex_normals
+
+    joints = paper_scene.joints[len(paper_scene.joints) // 2]
+    for _, m in tube_meshes(solve(paper_scene.robot, joints, paper_scene.model), paper_scene.robot, joints, sides=7):
+        assert np.abs(vertex_normals(m.vertices, m.faces) - m.vertex_normals).max() < 1e-12
