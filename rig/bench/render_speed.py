@@ -1,7 +1,8 @@
 """Twin rendering throughput per OpenGL platform, and truth checks.
 
 Each platform runs in its own process (PyOpenGL binds its platform once per
-process), pinned to one CPU core with llvmpipe limited to one thread, so the
+process), pinned to one CPU core with llvmpipe rasterizing on the calling thread
+(``LP_NUM_THREADS=0``: one rasterizer thread on the same core only adds hand-overs), so the
 figures are one-core figures. Besides pairs per second it reports how well the
 ground truth agrees with the rendered images: the fraction of backbone points
 that project inside the rendered silhouette, and the ratio of the silhouette
@@ -107,7 +108,7 @@ def render_speed(scene_path: str | None, frames: int, platforms) -> dict:
     """
     results = {}
     for plat in platforms:
-        env = dict(os.environ, CTR_BENCH_GL=plat, PYOPENGL_PLATFORM=plat, LP_NUM_THREADS="1", OMP_NUM_THREADS="1")
+        env = dict(os.environ, CTR_BENCH_GL=plat, PYOPENGL_PLATFORM=plat, LP_NUM_THREADS="0", OMP_NUM_THREADS="1")
         cmd = [sys.executable, "-m", "rig.bench.render_speed", scene_path or "", str(frames)]
         print(f"rendering with {plat} on one core ...", file=sys.stderr)
         proc = subprocess.run(cmd, env=env, capture_output=True, text=True)

@@ -36,7 +36,7 @@ def _run(args) -> int:
     r0 = next(iter(results.values()))
     if "width" in r0:
         print(f"\n{r0['width']}x{r0['height']}, {r0['frames']} robot frame pairs with ground truth (labels, depth) and noise, in memory; "
-              "one core (LP_NUM_THREADS=1, pinned); medians over the frames; 'cpu ms': the process's CPU time per pair, which other "
+              "one core (pinned; llvmpipe rasterizes on the calling thread, LP_NUM_THREADS=0); medians over the frames; 'cpu ms': the process's CPU time per pair, which other "
               "work on that core does not inflate. 'inside min': smallest fraction of backbone points projecting inside the "
               "rendered silhouette over all frames and cameras; 'area ratio': silhouette area / analytic projected tube area.")
     return 0
