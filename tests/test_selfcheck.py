@@ -340,6 +340,24 @@ def test_a_tip_cut_short_on_a_faint_inner_tube_is_flagged_by_the_tip_probe(model
     assert side["beyond_tip_contrast"] > p.max_beyond_tip_contrast, side
 
 
+@pytest.mark.parametrize("masks", [False, True])
+def test_a_tip_cut_short_that_clings_to_the_band_is_flagged_by_the_overhang(rendered, masks):
+    # 1.2 mm (10 footprints) off the tip: the inner tube beyond the band's square end reaches
+    # less than an outer diameter from the band, so the unexplained length drops it as a speck.
+    # The tip probe is off (masks have no contrast to probe): the overhang stands in for it.
+    images, bg = _masks(rendered, 255, 0) if masks else (rendered.frame.images, rendered.background)
+    model = prepare_selfcheck(rendered.rig, bg)
+    p = SelfCheckParams(tip_probe_px=0.0)
+    good = check_backbone(model, images, rendered.truth, rendered.radii, p)
+    assert good.ok, good.reason
+    assert all(f["tip_overhang_px"] <= 3.0 for f in good.figures.values()), good.figures
+    short = check_backbone(model, images, rendered.truth[rendered.s_mm <= rendered.s_mm[-1] - 1.2], rendered.radii, p)
+    assert not short.ok
+    assert "beyond the reprojected tip" in short.reason, short.reason
+    assert max(f["tip_overhang_px"] for f in short.figures.values()) > p.max_tip_overhang_px
+    assert all(f["unexplained_px"] < p.max_unexplained_px for f in short.figures.values()), short.figures
+
+
 def test_noise_specks_touching_the_tube_are_not_unexplained(model, rendered):
     # Dark specks of 2-5 px clinging to both sides of the tube, every ~12 px along it (what the
     # paper scene's noisy rotated frame shows): they reach a few px from the band and are not
