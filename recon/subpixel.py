@@ -1484,7 +1484,7 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
     gap). Following stops at the first longer run of misses (at least two
     profiles). With ``energy``, a profile without an edge pair still finds
     the tube where its core stands out (:func:`_energy_hits`, at the width
-    found so far), ahead of the last centre and away from the ``visited``
+    found so far but no narrower than ``tolerance``), ahead of the last centre and away from the ``visited``
     centres (m, 2) px.
 
     Returns
@@ -1522,7 +1522,10 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
         max_off = tolerance + 0.25 * np.maximum((seeds - tr.last_hit) @ t, 0.0)
         hit = pr.ok & (width > wmin) & (width < wmax) & (np.abs(off) < max_off)
         if energy and tr.widths and not hit.all():
-            _add_ridge_hits(model, frame, coeff, seeds, t, half, nav, threshold, tr.wref(), max_off, tr.last_hit, seen, pr, width, hit)
+            # The window is never narrower than the thinnest tube's radius: just before a tip the profiles cut
+            # the end cap (chords of 2-3 px), and a window that narrow finds a "core" in plain backdrop noise.
+            wref = max(tr.wref(), tolerance)
+            _add_ridge_hits(model, frame, coeff, seeds, t, half, nav, threshold, wref, max_off, tr.last_hit, seen, pr, width, hit)
         hit = hit.tolist()
         stop, confirmed = _count_batch(tr, model, seeds, pr, s + k + (pr.centers - seeds) @ t, hit, width.tolist(), edge)
         if stop:
