@@ -847,6 +847,16 @@ def _running_median(x: np.ndarray, win: int) -> np.ndarray:
     return np.median(np.lib.stride_tricks.sliding_window_view(xp, win), axis=1)
 
 
+def _tip_direction(uv_curve: np.ndarray, n_back: int) -> tuple | None:
+    """``(tip, unit direction)`` of a densely sampled image curve's end, over its last ``n_back`` samples; None where it has fewer or they coincide."""
+    if n_back < 1 or len(uv_curve) <= n_back:
+        return None
+    tip = uv_curve[-1]
+    d = tip - uv_curve[-1 - n_back]
+    nd = float(np.hypot(*d))
+    return None if nd < 1e-6 else (tip, d / nd)
+
+
 def _beyond_tip(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv_curve: np.ndarray, r_out_tip: float,
                 r_in_tip: float, params: SelfCheckParams, end_face_px: float = 0.0) -> float | None:
     """Tube contrast on the backbone's continuation beyond its reprojected tip, over what would flag it (> 1: the tube goes on).
@@ -860,15 +870,10 @@ def _beyond_tip(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv_curve
     probe left the faint short tips of the wide suite silent); None when less than
     half of the probe is in the image.
     """
-    n_back = max(2, int(math.ceil(2.0 * r_out_tip / params.sample_step_px)))
-    if len(uv_curve) <= n_back:
+    end = _tip_direction(uv_curve, max(2, int(math.ceil(2.0 * r_out_tip / params.sample_step_px))))
+    if end is None:
         return None
-    tip = uv_curve[-1]
-    d = tip - uv_curve[-1 - n_back]
-    nd = float(np.hypot(*d))
-    if nd < 1e-6:
-        return None
-    d = d / nd
+    tip, d = end
     start = params.tip_probe_start_px + end_face_px
     dist = np.arange(start, start + params.tip_probe_px + 1e-9, 1.0)
     pts = tip[None, :] + dist[:, None] * d[None, :]
@@ -1084,15 +1089,10 @@ def _tip_overhang_px(fg: np.ndarray, uv_roi: np.ndarray, r_in_tip: float, end_fa
     (tip last, in the image), ``r_in_tip`` the innermost radius there (px),
     ``end_face_px`` how far the tube's end face reaches beyond the tip (px).
     """
-    n_back = min(len(uv_roi) - 1, max(1, int(math.ceil(params.tip_tangent_px / params.sample_step_px))))
-    if n_back < 1:
+    end = _tip_direction(uv_roi, min(len(uv_roi) - 1, max(1, int(math.ceil(params.tip_tangent_px / params.sample_step_px)))))
+    if end is None:
         return None
-    tip = uv_roi[-1]
-    d = tip - uv_roi[-1 - n_back]
-    nd = float(np.hypot(*d))
-    if nd < 1e-6:
-        return None
-    d = d / nd
+    tip, d = end
     dt = 0.5
     half = r_in_tip + params.on_foreground_tolerance_px
     across = np.arange(-half, half + 1e-9, dt)
