@@ -1058,13 +1058,14 @@ def _unseen_share_of(camera, others, ys: np.ndarray, xs: np.ndarray, uvv: np.nda
 
 def _tip_figures(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.ndarray, finite: np.ndarray,
                  vis: np.ndarray, on: np.ndarray, on_fg: np.ndarray, r_out: np.ndarray, r_in: np.ndarray,
-                 face_share: float, params: SelfCheckParams) -> tuple:
+                 face_share: float | None, params: SelfCheckParams) -> tuple:
     """``(tip_off_foreground_px, beyond_tip_contrast)`` of one view, each None where not measured.
 
     ``uv`` the dense reprojection, ``finite`` and ``vis`` its finite and judged samples,
     ``on`` / ``on_fg`` per judged sample: supported (foreground or contrast) / on foreground,
     ``r_out`` / ``r_in`` the radii (px) per dense sample, ``face_share`` the end face's
-    reach beyond the tip in tube radii (:func:`_end_face_share`).
+    reach beyond the tip in tube radii (:func:`_end_face_share`), None where the tip probe
+    does not run.
     """
     # The end of the judged curve with nothing on it: a backbone that runs on beyond the tip
     # (the share above hides a 20 px overrun of a long robot). Only where the foreground shows
@@ -1075,7 +1076,7 @@ def _tip_figures(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.
     pre = on_fg[max(0, on.size - n_tail - n_pre):on.size - n_tail]
     tip_off = n_tail * params.sample_step_px if pre.size and pre.mean() >= 0.5 else None
     beyond = None
-    if params.tip_probe_px > 0 and not view.binary and vis[np.flatnonzero(finite)[-1]]:
+    if face_share is not None:
         # The tip itself is in view (not behind the base): does the tube go on beyond it?
         r_tip = float(r_out[finite][-1])
         beyond = _beyond_tip(view, gray, lighting, uv[finite], r_tip, float(r_in[finite][-1]), params, r_tip * face_share)
@@ -1192,14 +1193,15 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     if params.contrast_window_px > 0 and not view.binary and not on.all():
         on = on | _contrast_support(view, gray, lighting, uvv, normals, r_out[vis], r_in[vis], params)
     off = float(np.mean(~on))
+    # The tip itself in view (not behind the base): the probe looks beyond it; the overhang stands in for the
+    # probe where that cannot run (masks have no contrast to probe): on camera images near the 10-footprint
+    # line it only traded good frames for wrong ones (wide seeds 2/3).
     tip_seen = bool(vis[np.flatnonzero(finite)[-1]])
     face = _end_face_share(camera, points_world_mm, 2.0 * radii_mm[0]) if tip_seen else 0.0
-    tip_off, beyond = _tip_figures(view, gray, lighting, uv, finite, vis, on, on_fg, r_out, r_in, face, params)
-    # The overhang stands in for the tip probe where that cannot run (masks have no contrast to probe):
-    # on camera images near the 10-footprint line it only traded good frames for wrong ones (wide seeds 2/3).
-    probe_runs = params.tip_probe_px > 0 and not view.binary
+    probe = tip_seen and params.tip_probe_px > 0 and not view.binary
+    tip_off, beyond = _tip_figures(view, gray, lighting, uv, finite, vis, on, on_fg, r_out, r_in, face if probe else None, params)
     r_in_tip = float(r_in[finite][-1])
-    overhang = _tip_overhang_px(fg, uvr, r_in_tip, r_in_tip * face, params) if tip_seen and not probe_runs else None
+    overhang = _tip_overhang_px(fg, uvr, r_in_tip, r_in_tip * face, params) if tip_seen and not probe else None
     if _DEBUG is not None:
         _DEBUG[camera.name].update(on=on, lighting=lighting)
     rms, local = _centerline_figures(fg, uvr, normals, r_out[vis], r_in[vis], params)
