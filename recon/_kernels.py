@@ -28,7 +28,7 @@ _untilt_nb = njit(cache=True, nogil=True, inline="always")(distortion.untilt_xy)
 _undistort_step_nb = njit(cache=True, nogil=True, inline="always")(distortion.undistort_step)
 
 __all__ = ["profile_edges_nb", "profiles_at_seeds_nb", "profile_values_nb", "coarse_foreground_nb", "coarse_foreground_tiles_nb",
-           "bfs_path_nb", "rays_nb", "ridge_hits_nb", "near_any_nb", "spline_fit_nb", "spline_eval_nb", "spline_robust_nb", "frame_coefficients_nb",
+           "bfs_path_nb", "rays_nb", "ridge_hits_nb", "near_any_nb", "spline_fit_nb", "spline_basis_nb", "spline_eval_nb", "spline_robust_nb", "frame_coefficients_nb",
            "frame_shift_nb", "tip_along_axis_nb", "project_nb"]
 
 
@@ -589,6 +589,53 @@ def spline_fit_nb(idx, b, y, ok, w, P, smoothing):
         tr += AtA[a, a]
     lam = smoothing * tr / m
     return np.linalg.solve(AtA + lam * P, Aty)
+
+
+@njit(cache=True, nogil=True)
+def spline_basis_nb(s, s0, h, n_int, deriv):
+    """The four non-zero uniform cubic B-spline basis functions (or their first derivatives) at each ``s``.
+
+    Parameters
+    ----------
+    s : (n,) float64 array
+        Curve parameters (units of ``s0``).
+    s0, h : float
+        First knot and knot spacing.
+    n_int : int
+        Knot intervals (``n_int + 3`` coefficients).
+    deriv : int
+        0: the basis functions; 1: their derivatives (per unit of ``s``).
+
+    Returns
+    -------
+    idx : (n,) int64 array
+        First of the four coefficients each ``s`` uses.
+    b : (n, 4) float64 array
+        Their weights.
+    """
+    n = s.shape[0]
+    idx = np.empty(n, np.int64)
+    b = np.empty((n, 4))
+    k = 1.0 / (2.0 * h)
+    for r in range(n):
+        x = (s[r] - s0) / h
+        i = min(max(np.floor(x), 0.0), n_int - 1.0)
+        idx[r] = np.int64(i)
+        u = x - i
+        u2 = u * u
+        v = 1.0 - u
+        if deriv == 0:
+            u3 = u2 * u
+            b[r, 0] = v * v * v / 6.0
+            b[r, 1] = (3.0 * u3 - 6.0 * u2 + 4.0) / 6.0
+            b[r, 2] = (-3.0 * u3 + 3.0 * u2 + 3.0 * u + 1.0) / 6.0
+            b[r, 3] = u3 / 6.0
+        else:
+            b[r, 0] = -v * v * k
+            b[r, 1] = (3.0 * u2 - 4.0 * u) * k
+            b[r, 2] = (-3.0 * u2 + 2.0 * u + 1.0) * k
+            b[r, 3] = u2 * k
+    return idx, b
 
 
 @njit(cache=True, nogil=True)

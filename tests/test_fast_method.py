@@ -23,7 +23,7 @@ from recon.methods import get_method, prepare
 from recon.metrics import backbone_errors, point_to_polyline_distances
 from recon.params import params_from_dict
 from recon.rigcal import RigCalibration
-from recon.subpixel import (ViewParams, _Fitter, _near, coarse_abs_difference, coarse_path, extract_view, fit_curve,
+from recon.subpixel import (UniformSpline, ViewParams, _Fitter, _near, coarse_abs_difference, coarse_path, extract_view, fit_curve,
                             frame_coefficients, frame_shift, prepare_view)
 
 # Frames of scenes/paper.toml: inner tube 5 mm out, 45 mm out (straight then curved), and rotated.
@@ -433,6 +433,24 @@ def test_spline_kernels_agree_with_their_oracles():
     np.testing.assert_allclose(ca, cb, atol=1e-9)
     np.testing.assert_allclose(fa.values(ca), fb.values(ca), atol=1e-9)
     np.testing.assert_allclose(fa.derivatives(ca), fb.derivatives(ca), atol=1e-12)
+
+
+def test_the_uniform_spline_is_scipys_cubic_b_spline_on_the_same_knots():
+    """Values and first derivatives of :class:`UniformSpline` (compiled basis) against scipy's B-spline, for curves
+    of one and three columns and parameters at, between and just inside the end knots."""
+    from scipy.interpolate import BSpline
+
+    rng = np.random.default_rng(21)
+    for n_int, dim in ((1, 1), (7, 3), (40, 2)):
+        s0, h = float(rng.uniform(-50.0, 50.0)), float(rng.uniform(0.5, 30.0))
+        coef = rng.normal(0.0, 10.0, (n_int + 3, dim))
+        ref = BSpline(s0 + h * np.arange(-3, n_int + 4), coef, 3)
+        s = np.concatenate([s0 + h * np.arange(n_int + 1), rng.uniform(s0, s0 + n_int * h, 50)])
+        spl = UniformSpline(s0, h, n_int, coef)
+        np.testing.assert_allclose(spl(s), ref(s), rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(spl.derivative()(s), ref.derivative()(s), rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(UniformSpline(s0, h, n_int, coef[:, 0])(s), ref(s)[:, 0], rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(spl(float(s[-1])), ref(s[-1]), rtol=1e-10, atol=1e-9)
 
 
 def test_ray_and_projection_kernels_agree_with_python(synthetic):
