@@ -748,19 +748,23 @@ def frame_coefficients_nb(frame_flat, sample_index, sample_mean, Bt, G, thr):
     -------
     c : (k,) float64 array
         The coefficients ``c_1..c_k``.
-    fmax : float
-        The brightest sample (gray levels).
+    lo, hi : float
+        The darkest and the brightest sampled pixel (gray levels), for
+        :func:`recon.background.no_picture`.
     """
     M = sample_index.shape[0]
     k = Bt.shape[1]
     r = np.empty(M)
-    fmax = 0.0
+    lo = np.inf
+    hi = -np.inf
     for i in range(M):
-        v = 0.25 * (np.float64(frame_flat[sample_index[i, 0]]) + frame_flat[sample_index[i, 1]]
-                    + frame_flat[sample_index[i, 2]] + frame_flat[sample_index[i, 3]])
-        if v > fmax:
-            fmax = v
-        r[i] = v - sample_mean[i]
+        v = 0.0
+        for q in range(4):
+            x = np.float64(frame_flat[sample_index[i, q]])
+            v += x
+            lo = min(lo, x)
+            hi = max(hi, x)
+        r[i] = 0.25 * v - sample_mean[i]
     rhs = np.zeros(k)
     for i in range(M):
         for j in range(k):
@@ -781,7 +785,7 @@ def frame_coefficients_nb(frame_flat, sample_index, sample_mean, Bt, G, thr):
                     G2[a, b2] -= Bt[i, a] * Bt[i, b2]
     if out > 0:
         c = np.linalg.solve(G2, rhs2)
-    return c, fmax
+    return c, lo, hi
 
 
 @njit(cache=True, nogil=True)
