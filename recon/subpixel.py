@@ -1749,6 +1749,30 @@ def _follow_rounds(model, frame, coeff, prof, fit: _Fit, follow: dict, params, w
     return end_t
 
 
+#: The tip stage is run again along the final curve where the two end tangents are this far apart (deg).
+_TIP_RETRY_DEG = 10.0
+
+
+def _tip_along_final_curve(model, frame, coeff, p_fit, t_fit, t_tip, end_px, radius_px, threshold) -> np.ndarray:
+    """The tip (px), measured again from the final curve's last centre ``p_fit`` along its end tangent ``t_fit``
+    where the tip stage walked along a tangent ``t_tip`` more than :data:`_TIP_RETRY_DEG` away; ``end_px`` as
+    it is otherwise, or where the new end lies no more than 1 px beyond it.
+
+    Profiles that cut the end cap at a slant read centres off the axis, and the last knot span turns towards
+    them; the tip stage then walks off the tube at once and the tip lands on the last centre. The end-cap rule
+    drops those centres from the final curve, which then points along the tube again (seen: the paper scene's
+    top view under other noise draws, the tangents 25 deg apart, the tip 6 px short).
+    """
+    if float(t_tip @ t_fit) >= np.cos(np.radians(_TIP_RETRY_DEG)):
+        return end_px
+    before = float((end_px - p_fit) @ t_fit)
+    # The end lies beyond the centres the end-cap rule dropped: look as far ahead of the old end as the stage does.
+    again = _tip_along_axis(model, frame, coeff, p_fit, t_fit, radius_px, threshold, ahead_px=20.0 + max(before, 0.0))
+    if not np.isfinite(again) or again <= before + 1.0:
+        return end_px
+    return p_fit + again * t_fit
+
+
 def _fit_along_path(model: ViewModel, frame: np.ndarray, coarse: CoarseResult, params: ViewParams, lap) -> tuple:
     """Profiles along the coarse path, wide enough for its error (about a pooled cell), and the robust spline
     through their centres: ``(prof, fit, (wmin, wmax))``, the accepted widths (px) last.
@@ -1828,7 +1852,10 @@ def extract_view(model: ViewModel, frame: np.ndarray, params: ViewParams, roi=No
         end_t = 0.0
     # Profiles within about a radius of the silhouette's end are cut by the end cap.
     ok &= s <= sb + end_t - 1.2 * r_end - 1.0
-    spl, good, s_end, t_end, end_px = _final_curve(model.name, fitter, s, c, ok, p_end + end_t * t_end, params)
+    spl, good, s_end, t_fit, end_px = _final_curve(model.name, fitter, s, c, ok, p_end + end_t * t_end, params)
+    end_px = _tip_along_final_curve(model, frame, coarse.coefficients, spl(s_end), t_fit, t_end, end_px, r_end,
+                                    follow["threshold1"])
+    t_end = t_fit
     lap("fit")
     # Outside border check at full resolution: the tip must not be at the border.
     H, W = model.shape

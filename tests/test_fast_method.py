@@ -23,7 +23,7 @@ from recon.methods import get_method, prepare
 from recon.metrics import backbone_errors, point_to_polyline_distances
 from recon.params import params_from_dict
 from recon.rigcal import RigCalibration
-from recon.subpixel import (UniformSpline, ViewParams, _Fitter, _near, coarse_abs_difference, coarse_path, extract_view, fit_curve,
+from recon.subpixel import (UniformSpline, ViewParams, _Fitter, _near, _tip_along_final_curve, coarse_abs_difference, coarse_path, extract_view, fit_curve,
                             frame_coefficients, frame_shift, prepare_view)
 
 # Frames of scenes/paper.toml: inner tube 5 mm out, 45 mm out (straight then curved), and rotated.
@@ -229,6 +229,33 @@ def test_subpixel_centerline_of_a_drawn_tube(synthetic):
         w_true = 2 * np.interp(vc.s, np.linspace(vc.s[0], vc.s[-1], len(radii)), radii) * cam.K[0, 0] / np.median(z)
         assert np.median(np.abs(vc.width_px[:50] - 2 * 0.8 * cam.K[0, 0] / np.median(z))) < 0.3
         assert w_true.shape == vc.width_px.shape
+
+
+def test_a_tip_stage_bent_off_the_tube_is_measured_again_along_the_final_curve(synthetic):
+    """The tip stage walked along a tangent 25 deg off the final curve's (bent by end-cap centres) and ended on
+    the last centre: the tip is measured again along the final curve, where it would have been found; at 5 deg
+    apart it stays as it was."""
+    rig, backgrounds, rng = synthetic
+    s, pts, radii = robot_backbone(length=45.0)  # straight to 35 mm, then gently bent; 0.8 mm radius
+    params = FastParams()
+    model = prepare_fast(rig, backgrounds, params)
+    view, cam = model.views["top"], rig["top"]
+    frame = np.clip(draw_tube(_backdrop(rng, 1.01), cam, pts, radii), 0, 255).astype(np.uint8)
+    coeff = frame_coefficients(view, frame)
+    uv, _ = cam.project(pts)
+    t = (uv[-1] - uv[-30]) / np.linalg.norm(uv[-1] - uv[-30])
+    p_fit = uv[-1] - 12.0 * t  # the final curve's last centre, 12 px before the end
+    r_px, thr = radii[-1] * cam.K[0, 0] / 300.0, 20.0
+
+    def tip(t_tip, end_px):
+        return _tip_along_final_curve(view, frame, coeff, p_fit, t, t_tip, end_px, r_px, thr)
+
+    straight = tip(-t, p_fit)  # opposite tangents: measured along t
+    assert abs((straight - uv[-1]) @ t) < r_px + 1.0, straight - uv[-1]  # a drawn tube's end is a round cap
+    c, s_ = np.cos(np.radians(25.0)), np.sin(np.radians(25.0))
+    np.testing.assert_allclose(tip(np.array([c * t[0] - s_ * t[1], s_ * t[0] + c * t[1]]), p_fit), straight)
+    c, s_ = np.cos(np.radians(5.0)), np.sin(np.radians(5.0))
+    np.testing.assert_array_equal(tip(np.array([c * t[0] - s_ * t[1], s_ * t[0] + c * t[1]]), p_fit), p_fit)
 
 
 def test_profile_edges_partial_coverage():
