@@ -153,8 +153,9 @@ def test_tube_at_5_deg_or_more_to_a_camera_axis_is_accurate(method, data):
 
 @pytest.mark.parametrize("method, angle_deg", [
     pinned("paper", 1.0),
-    pinned("paper", 4.0, wrong="at 4 deg to the side camera's axis the backbone is 7.7 mm short (bound 2.0 mm), "
-                              "no FrameError; right at 1.0-3.5 deg"),
+    # Measured wrong on 2026-12-02 (7.7 mm short, no FrameError), right since the twin's noise draws changed
+    # (2026-12-04): at this border the outcome follows the noise.
+    pinned("paper", 4.0),
     pinned("fast", 1.0),
     pinned("fast", 3.5, wrong="at 3.5 deg the backbone is 4.7 mm short at the base end (mean 0.19 > 0.18 mm), no "
                              "FrameError; right at 2.5, 3.0 and 4.0 deg, FrameError ('robot too short in the "
@@ -192,9 +193,9 @@ def test_tube_near_an_epipolar_plane_is_a_frame_error_or_right(method, angle_deg
 
 # ============================================================================= (c) folding back over itself
 @pytest.mark.parametrize("method, bend_tilt_deg", [
-    pinned("paper", (150.0, 1.5), raises=FrameError,
-           wrong="FrameError ('the carved robot is in pieces the backbone cannot join') where the top view alone "
-                 "places the fold; right at 90/0 and 240/3 deg"),
+    # A FrameError ('the carved robot is in pieces the backbone cannot join') on 2026-12-02, where the top view
+    # alone places the fold; right since the twin's noise draws changed (2026-12-04).
+    pinned("paper", (150.0, 1.5)),
     pinned("paper", (240.0, 3.0)),
     pinned("fast", (150.0, 1.5)),
     pinned("fast", (240.0, 3.0)),

@@ -1,26 +1,37 @@
 """The twin's sensor model: expose() is its NumPy form, bit for bit, and its noise is shot + read noise.
 
 The compiled per-pixel pass of :func:`twin.noise.expose` is checked against the NumPy
-form of the same model (the oracle below, drawing the same normals), and its noise
-against the variance the model predicts (shot noise in proportion to the signal, plus
-read noise). No OpenGL: these tests run anywhere.
+form of the same model (the oracle below, hashing the same keys into the same normal
+levels), and its noise against the variance the model predicts (shot noise in
+proportion to the signal, plus read noise) and against the independence of its draws.
+No OpenGL: these tests run anywhere.
 """
 import numpy as np
 import pytest
 
-from twin.noise import LUMA, expose, frame_rng, lighting_field
+from twin.noise import _NORMAL_LEVELS, LUMA, expose, frame_rng, lighting_field
 from twin.scene import NoiseModel
 
 SHAPE = (96, 128)
 
 
+def _hashed_normals(key: int, shape: tuple) -> np.ndarray:
+    """The sensor's standard normals for image ``key``: SplitMix64 of key + counter * golden picks a level."""
+    with np.errstate(over="ignore"):
+        h = np.uint64(key) + np.arange(int(np.prod(shape)), dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+        h = (h ^ (h >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        h = (h ^ (h >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        h ^= h >> np.uint64(31)
+    return _NORMAL_LEVELS[h & np.uint64(len(_NORMAL_LEVELS) - 1)].reshape(shape)
+
+
 def _oracle(radiance, noise, t_frames, rng):
-    """expose() of a mono signal (H, W) or RGB radiance (H, W, 3) as NumPy array passes, drawing the same normals."""
+    """expose() of a mono signal (H, W) or RGB radiance (H, W, 3) as NumPy array passes, with the same normals."""
     gain, offset = lighting_field(noise, radiance.shape[:2], t_frames, rng)
     gain = gain * np.float32(255.0)
     img = np.clip(radiance * (gain if radiance.ndim == 2 else gain[..., None]) + np.float32(offset), 0.0, 255.0)
     var = img * np.float32(255.0 / noise.photons_full_scale) + np.float32(noise.read_noise_dn**2)
-    img += np.sqrt(var) * rng.standard_normal(img.shape, dtype=np.float32)
+    img += np.sqrt(var) * _hashed_normals(int(rng.integers(0, 2**63)), img.shape)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
 
@@ -79,3 +90,16 @@ def test_blur_and_rgb_keep_shape_and_level():
     out = expose(rgb, noise, 0.0, frame_rng(1, "b", 0, "c"), color="rgb")
     assert out.shape == SHAPE + (3,) and out.dtype == np.uint8
     assert out.mean() == pytest.approx(100.0, abs=0.2)
+
+
+def test_noise_draws_are_standard_normal_and_independent():
+    """The hashed draws: mean 0, unit variance, the normal's share within 1 and 2 sigma, no correlation
+    between neighbouring pixels, rows, channels or frames (a weak hash or a shared key fails these)."""
+    z = _hashed_normals(int(frame_rng(7, "n", 0, "c").integers(0, 2**63)), (480, 640, 3)).astype(float)
+    other = _hashed_normals(int(frame_rng(7, "n", 1, "c").integers(0, 2**63)), (480, 640, 3)).astype(float)
+    assert abs(z.mean()) < 0.01 and z.var() == pytest.approx(1.0, abs=0.01)
+    assert np.mean(np.abs(z) < 1) == pytest.approx(0.6827, abs=0.005)
+    assert np.mean(np.abs(z) < 2) == pytest.approx(0.9545, abs=0.003)
+    pairs = [(z[:, :-1], z[:, 1:]), (z[:-1], z[1:]), (z[..., 0], z[..., 1]), (z, other)]
+    for a, b in pairs:
+        assert abs(np.corrcoef(a.ravel(), b.ravel())[0, 1]) < 0.01

@@ -11,6 +11,7 @@ import zlib
 import cv2
 import numpy as np
 from numba import njit
+from scipy.special import ndtri
 
 from recon.camera import Camera
 from recon.geometry import rotation_matrix
@@ -100,25 +101,45 @@ def _ramped(noise: NoiseModel, shape: tuple, gain: float, offset: float, rng: np
     return np.full((h, w), gain, np.float32), offset
 
 
+def _normal_levels(bits: int) -> np.ndarray:
+    """The standard normal's quantiles at ``2**bits`` equally likely levels, scaled to unit variance (float32)."""
+    n = 1 << bits
+    q = ndtri((np.arange(n) + 0.5) / n)
+    return (q / q.std()).astype(np.float32)
+
+
+#: The sensor noise's draws: 65536 equally likely normal levels (|z| <= 4.3), a 256 kB
+#: table that stays in cache; a hash of (image key, pixel, channel) picks one.
+_NORMAL_LEVELS = _normal_levels(16)
+
+
 @njit(cache=True, nogil=True)
-def _sensor_nb(signal, gain, offset, shot_per_dn, read_var, normal, out):  # pragma: no cover - compiled
+def _sensor_nb(signal, gain, offset, shot_per_dn, read_var, key, levels, out):  # pragma: no cover - compiled
     """The per-pixel sensor model of :func:`expose`, fused into one pass (float32 throughout).
 
     Pixel ``p``, channel ``k``: ``x = clip(signal[p, k] * gain[p] + offset, 0, 255)`` DN, plus
-    ``sqrt(x * shot_per_dn + read_var) * normal[p, k]`` when ``normal`` is not empty, rounded
-    half to even and saturated into ``out[p, k]`` (uint8). A ``gain`` of length 1 applies
-    to every pixel.
+    ``sqrt(x * shot_per_dn + read_var) * z`` when ``levels`` is not empty, rounded half to
+    even and saturated into ``out[p, k]`` (uint8). ``z`` is ``levels[h & (len - 1)]`` with
+    ``h`` SplitMix64's output for the counter ``key + (p * channels + k) * golden``, so
+    every (image, pixel, channel) has its own independent draw, the same in any order.
+    A ``gain`` of length 1 applies to every pixel.
     """
     n, c = signal.shape
     step = 1 if gain.shape[0] == n else 0
-    noisy = normal.shape[0] > 0
+    noisy = levels.shape[0] > 0
+    mask = np.uint64(max(levels.shape[0], 1) - 1)
+    golden, mix1, mix2 = np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
     lo, hi = np.float32(0.0), np.float32(255.0)
     for p in range(n):
         g = gain[p * step]
         for k in range(c):
             x = min(max(signal[p, k] * g + offset, lo), hi)
             if noisy:
-                x += np.sqrt(x * shot_per_dn + read_var) * normal[p, k]
+                h = key + np.uint64(p * c + k) * golden
+                h = (h ^ (h >> np.uint64(30))) * mix1
+                h = (h ^ (h >> np.uint64(27))) * mix2
+                h ^= h >> np.uint64(31)
+                x += np.sqrt(x * shot_per_dn + read_var) * levels[h & mask]
             out[p, k] = np.uint8(min(max(np.rint(x), lo), hi))
     return out
 
@@ -128,9 +149,10 @@ def _sensor(signal: np.ndarray, gain: np.ndarray, offset: float, noise: NoiseMod
 
     Shot noise (Poisson in photo-electrons) and read noise (Gaussian in DN) add in
     variance; with thousands of electrons at full scale the Poisson law is Gaussian to
-    within a fraction of a DN, and drawing one Gaussian field is ~10x faster. The field is
-    ``rng.standard_normal`` in float32 over ``signal``'s shape, the draws of the NumPy form
-    of this model: a scene's images (and the accuracy tests tuned on them) stay the same.
+    within a fraction of a DN. Each pixel's standard normal is one of 65536 equally
+    likely levels (:data:`_NORMAL_LEVELS`), picked by a hash of the pixel and a key drawn
+    from ``rng``: a fifth of the time of drawing a normal field with ``rng`` and reading
+    it back (2.0 against 9.6 ms for a 1024x768 image, one core).
 
     Parameters
     ----------
@@ -143,9 +165,10 @@ def _sensor(signal: np.ndarray, gain: np.ndarray, offset: float, noise: NoiseMod
     shot = np.float32(255.0 / noise.photons_full_scale) if noise.photons_full_scale > 0 else np.float32(0.0)
     read_var = np.float32(noise.read_noise_dn**2) if noise.read_noise_dn > 0 else np.float32(0.0)
     noisy = shot > 0 or read_var > 0
-    normal = rng.standard_normal(signal.shape, dtype=np.float32).reshape(flat.shape) if noisy else np.zeros((0, 1), np.float32)
+    key = np.uint64(rng.integers(0, 2**63)) if noisy else np.uint64(0)
+    levels = _NORMAL_LEVELS if noisy else _NORMAL_LEVELS[:0]
     out = np.empty(flat.shape, np.uint8)
-    _sensor_nb(flat, np.ascontiguousarray(gain, dtype=np.float32).ravel(), np.float32(offset), shot, read_var, normal, out)
+    _sensor_nb(flat, np.ascontiguousarray(gain, dtype=np.float32).ravel(), np.float32(offset), shot, read_var, key, levels, out)
     return out.reshape(signal.shape)
 
 
