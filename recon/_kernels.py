@@ -1234,3 +1234,41 @@ def near_any_nb(points, visited, radius):
                 out[i] = True
                 break
     return out
+
+
+@njit(cache=True, nogil=True)
+def polyline_distances_nb(points, polyline):
+    """Distance from each point to a polyline, and the segment where it is nearest.
+
+    Parameters
+    ----------
+    points : (n, 2) float64 array
+        Points (image frame, px).
+    polyline : (m, 2) float64 array, m >= 2
+        Vertices in order (image frame, px).
+
+    Returns
+    -------
+    d : (n,) float64 array
+        Distances (px), as :func:`recon.metrics.point_to_polyline_distances`.
+    seg : (n,) int64 array
+        Index of the nearest segment (0 .. m - 2).
+    """
+    n, m = points.shape[0], polyline.shape[0]
+    d = np.empty(n)
+    seg = np.zeros(n, np.int64)
+    for i in range(n):
+        best = np.inf
+        for k in range(m - 1):
+            ax, ay = polyline[k, 0], polyline[k, 1]
+            bx, by = polyline[k + 1, 0] - ax, polyline[k + 1, 1] - ay
+            px, py = points[i, 0] - ax, points[i, 1] - ay
+            ab2 = bx * bx + by * by
+            t = 0.0 if ab2 <= 0.0 else min(max((px * bx + py * by) / ab2, 0.0), 1.0)
+            ex, ey = px - t * bx, py - t * by
+            e2 = ex * ex + ey * ey
+            if e2 < best:
+                best = e2
+                seg[i] = k
+        d[i] = np.sqrt(best)
+    return d, seg

@@ -14,6 +14,7 @@ import strategies as S
 from drawn_tubes import draw_tube, robot_backbone
 
 from recon import _kernels
+from recon import fast as fast_module
 from recon.camera import Camera
 from recon.epipolar import EpipolarFrame, align_dp, monotonic, triangulate_rays
 from recon.errors import FrameError
@@ -281,6 +282,49 @@ def test_synthetic_robot_reconstruction(synthetic):
     e = backbone_errors(r.points_world_mm, pts)
     assert e["mean_error_mm"] < 0.05 and e["max_error_mm"] < 0.25 and e["tip_error_mm"] < 0.25, e
     assert abs(r.transition_s_mm - 50.0) < 1.0
+
+
+def test_compiled_polyline_distances_equal_the_metrics_ones():
+    """The compiled distances and nearest segments against recon.metrics on a random walk (fails with the
+    segment parameter unclipped, which lets points project beyond a segment's ends)."""
+    rng = np.random.default_rng(11)
+    line = np.cumsum(rng.normal(0.0, 3.0, (60, 2)), axis=0)
+    pts = line[rng.integers(0, 60, 200)] + rng.normal(0.0, 6.0, (200, 2))
+    d, seg = _kernels.polyline_distances_nb(pts, line)
+    np.testing.assert_allclose(d, point_to_polyline_distances(pts, line), atol=1e-9)
+    for k in (0, 17, 199):
+        np.testing.assert_allclose(d[k], point_to_polyline_distances(pts[k:k + 1], line[seg[k]:seg[k] + 2])[0], atol=1e-9)
+
+
+def test_a_backbone_that_leaves_a_views_centerline_is_suspect(synthetic):
+    """Moved 2 mm along the top camera's y over 10 mm of its middle (about 17 px in the top image; along the
+    side camera's depth, so the side view sees nothing), the backbone no longer follows the top view's
+    centerline: the reason names the view. As reconstructed it follows both views."""
+    rig, backgrounds, rng = synthetic
+    s, pts, radii = robot_backbone()
+    params = FastParams()
+    rec = prepare("fast", rig, backgrounds, params)
+    r = rec(_frames(rig, rng, pts, radii))
+    assert r.suspect_reason is None
+    cap = {}
+    orig = fast_module._off_centerline
+
+    def spy(model, params_, views, points):
+        cap.update(model=model, views=views)
+        return orig(model, params_, views, points)
+
+    fast_module._off_centerline = spy
+    try:
+        rec(_frames(rig, rng, pts, radii))
+    finally:
+        fast_module._off_centerline = orig
+    moved = r.points_world_mm.copy()
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(moved, axis=0), axis=1))])
+    y_top = rig["top"].T_cam_world[1, :3]  # the top camera's y axis in the world frame: the side camera's depth
+    moved[(arc > 40.0) & (arc < 50.0)] += 2.0 * y_top
+    assert fast_module._off_centerline(cap["model"], params, cap["views"], r.points_world_mm) is None
+    reason = fast_module._off_centerline(cap["model"], params, cap["views"], moved)
+    assert reason is not None and reason.startswith("top: the backbone leaves this view's centerline"), reason
 
 
 def test_coarse_difference_does_not_cancel_across_a_thin_tube(synthetic):
