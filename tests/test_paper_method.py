@@ -204,3 +204,28 @@ def test_base_outside_the_view(setup):
     assert backbone_errors(rec.points_world_mm, seen)["mean_error_mm"] <= voxel
     assert np.linalg.norm(rec.tip_world_mm - truth[-1]) <= 2 * voxel
     assert rec.points_world_mm[0, 0] < -5.0  # base first: from the image border
+
+
+def _backbone_along_x(y_mm):
+    """A backbone every 0.5 mm along x over 40 mm with the given y offsets (mm) of its points."""
+    from recon.backbone import ReconstructedBackbone
+    from recon.geometry import arc_length
+
+    x = np.arange(0.0, 40.0 + 1e-9, 0.5)
+    pts = np.stack([x, np.asarray(y_mm(x), float), np.zeros_like(x)], axis=1)
+    return ReconstructedBackbone(points_mm=pts, tip_mm=pts[-1].copy(), transition_s_mm=30.0, transition_mm=pts[60],
+                                 length_mm=float(arc_length(pts)[-1]), n_voxels=100, n_dropped=0)
+
+
+def test_a_start_curled_by_the_border_cut_is_put_back_on_the_tube():
+    """The first 3 mm curl 1.5 mm off a straight tube (what the border's slanted cut leaves): they are put on the
+    line of the next 5 mm. A precurved tube's start (0.1 mm off 5 mm of chord) stays as it is."""
+    from recon.paper import _straight_start
+
+    curled = _backbone_along_x(lambda x: np.where(x < 3.0, 0.5 * (3.0 - x), 0.0))
+    out = _straight_start(curled, voxel_mm=0.6)
+    assert np.abs(out.points_mm[:, 1]).max() < 1e-9
+    np.testing.assert_allclose(out.points_mm[:, 0], curled.points_mm[:, 0])
+    assert out.length_mm == pytest.approx(40.0) and out.transition_s_mm < curled.transition_s_mm
+    bent = _backbone_along_x(lambda x: 0.1 * ((x - 10.0) / 5.0) ** 2)
+    assert _straight_start(bent, voxel_mm=0.6) is bent
