@@ -508,12 +508,15 @@ def _straight_start(bb, voxel_mm: float):
 
 def _straight_end(bb, voxel_mm: float):
     """The backbone with its last ``2.5 voxel_mm`` put onto the line of the 5 mm before, where they hook off
-    it by more than half a voxel.
+    it by more than half a voxel beyond what that stretch's own bend predicts.
 
     The carved tip ends where the two views' silhouette ends cut it, two planes at a slant to the tube; the
     last bins lean towards the longer corner and the backbone hooks (seen: wide-2-1 frame 2, the last 2.5 mm
-    0.6 mm off the tube, 0.87 mm after the refinement). Over 2.5 voxels a tube bent to a 30 mm radius leaves
-    its tangent by ~0.1-0.2 mm. The points keep their distances along the line.
+    0.6 mm off the tube, 0.87 mm after the refinement). A tube bent to radius R leaves that line by
+    ((L/2 + e)^2 - (L/2)^2) / 2R at a distance e past a chord of length L, 0.4 mm for R = 30 mm over
+    these lengths; R is taken from the stretch's sagitta h (1/2R = 4h/L^2), so a curved end keeps its
+    bend (wide-1-38 frame 1: straightened, 0.6 mm off at a 1.2 mm voxel). The points keep their distances
+    along the line.
     """
     pts = bb.points_mm
     s = arc_length(pts)
@@ -523,8 +526,13 @@ def _straight_end(bb, voxel_mm: float):
         return bb
     d = pts[a] - pts[b]
     d /= max(float(np.linalg.norm(d)), 1e-12)
-    on_line = pts[a] + ((pts[a:] - pts[a]) @ d)[:, None] * d
-    if float(np.max(np.linalg.norm(pts[a:] - on_line, axis=1))) <= 0.5 * voxel_mm:
+    along = ((pts[a:] - pts[a]) @ d)[:, None]
+    on_line = pts[a] + along * d
+    chord = float(np.linalg.norm(pts[a] - pts[b]))
+    rel = pts[b:a] - pts[b]
+    sag = float(np.max(np.linalg.norm(rel - (rel @ d)[:, None] * d, axis=1)))
+    bend = 4.0 * sag / chord ** 2 * ((chord / 2 + along[:, 0]) ** 2 - chord ** 2 / 4)
+    if np.all(np.linalg.norm(pts[a:] - on_line, axis=1) <= 0.5 * voxel_mm + bend):
         return bb
     new = np.concatenate([pts[:a], on_line])
     return replace(bb, points_mm=new, tip_mm=new[-1].copy(), length_mm=float(arc_length(new)[-1]))

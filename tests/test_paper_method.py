@@ -233,8 +233,8 @@ def test_a_start_curled_by_the_border_cut_is_put_back_on_the_tube():
 
 def test_a_tip_hooked_by_the_silhouette_ends_is_put_back_on_the_tube():
     """The last 1 mm hook 0.6 mm off a straight tube (where the two views' slanted end cuts leave the carved tip):
-    they go onto the line of the 5 mm before, keeping their distances along it. A tube bent to a 100 mm radius
-    (its end ~0.1 mm off that line) keeps its tip."""
+    they go onto the line of the 5 mm before, keeping their distances along it. A tube bent to a 100 mm or a
+    15 mm radius (its end ~0.1 or ~0.8 mm off that line, at a 1.2 mm voxel) keeps its tip."""
     from recon.paper import _straight_end
 
     hooked = _backbone_along_x(lambda x: np.where(x > 39.0, 0.6 * (x - 39.0), 0.0))
@@ -242,5 +242,6 @@ def test_a_tip_hooked_by_the_silhouette_ends_is_put_back_on_the_tube():
     assert np.abs(out.points_mm[:, 1]).max() < 1e-9
     np.testing.assert_allclose(out.tip_mm, [40.0, 0.0, 0.0], atol=1e-9)
     assert out.length_mm == pytest.approx(40.0)
-    bent = _backbone_along_x(lambda x: 100.0 - np.sqrt(100.0 ** 2 - np.maximum(x - 10.0, 0.0) ** 2))
-    assert _straight_end(bent, voxel_mm=0.6) is bent
+    for radius_mm, start_mm in ((100.0, 20.0), (15.0, 32.0)):  # 15 mm: the end ~0.8 mm off the line of the 5 mm before
+        bent = _backbone_along_x(lambda x: radius_mm - np.sqrt(radius_mm ** 2 - np.maximum(x - start_mm, 0.0) ** 2))
+        assert _straight_end(bent, voxel_mm=1.2) is bent
