@@ -481,6 +481,16 @@ def _continued_back(bb, back: np.ndarray):
                    transition_s_mm=bb.transition_s_mm + ext)
 
 
+def _onto_line(points, origin, other):
+    """``points`` (world, mm) projected onto the line through ``origin`` and ``other``: the projections, their
+    signed distances from ``origin`` (positive away from ``other``, mm) and the points' distances from the line (mm)."""
+    d = origin - other
+    d = d / max(float(np.linalg.norm(d)), 1e-12)
+    along = (points - origin) @ d
+    on_line = origin + along[:, None] * d
+    return on_line, along, np.linalg.norm(points - on_line, axis=1)
+
+
 def _straight_start(bb, voxel_mm: float):
     """The backbone with its first ~5 mm put onto the line of the next ~5 mm, where they curl off it by more
     than ``voxel_mm``.
@@ -495,11 +505,8 @@ def _straight_start(bb, voxel_mm: float):
     k = _chord_index(pts, bb.length_mm)
     if 2 * k >= len(pts):
         return bb
-    d = pts[k] - pts[2 * k]
-    d /= max(float(np.linalg.norm(d)), 1e-12)
-    along = (pts[:k] - pts[k]) @ d
-    on_line = pts[k] + along[:, None] * d
-    if float(np.max(np.linalg.norm(pts[:k] - on_line, axis=1))) <= voxel_mm:
+    on_line, _, off = _onto_line(pts[:k], pts[k], pts[2 * k])
+    if float(np.max(off)) <= voxel_mm:
         return bb
     new = np.concatenate([on_line, pts[k:]])
     shorter = bb.length_mm - float(arc_length(new)[-1])
@@ -524,15 +531,11 @@ def _straight_end(bb, voxel_mm: float):
     b = int(np.searchsorted(s, s[a] - 5.0))
     if a >= len(pts) - 1 or b >= a or a < 2:
         return bb
-    d = pts[a] - pts[b]
-    d /= max(float(np.linalg.norm(d)), 1e-12)
-    along = ((pts[a:] - pts[a]) @ d)[:, None]
-    on_line = pts[a] + along * d
+    on_line, along, off = _onto_line(pts[a:], pts[a], pts[b])
     chord = float(np.linalg.norm(pts[a] - pts[b]))
-    rel = pts[b:a] - pts[b]
-    sag = float(np.max(np.linalg.norm(rel - (rel @ d)[:, None] * d, axis=1)))
-    bend = 4.0 * sag / chord ** 2 * ((chord / 2 + along[:, 0]) ** 2 - chord ** 2 / 4)
-    if np.all(np.linalg.norm(pts[a:] - on_line, axis=1) <= 0.5 * voxel_mm + bend):
+    sag = float(np.max(_onto_line(pts[b:a], pts[a], pts[b])[2]))
+    bend = 4.0 * sag / chord ** 2 * ((chord / 2 + along) ** 2 - chord ** 2 / 4)
+    if np.all(off <= 0.5 * voxel_mm + bend):
         return bb
     new = np.concatenate([pts[:a], on_line])
     return replace(bb, points_mm=new, tip_mm=new[-1].copy(), length_mm=float(arc_length(new)[-1]))
