@@ -509,8 +509,8 @@ def _straight_start(bb, voxel_mm: float):
     if float(np.max(off)) <= voxel_mm:
         return bb
     new = np.concatenate([on_line, pts[k:]])
-    shorter = bb.length_mm - float(arc_length(new)[-1])
-    return replace(bb, points_mm=new, length_mm=bb.length_mm - shorter, transition_s_mm=bb.transition_s_mm - shorter)
+    length_mm = float(arc_length(new)[-1])
+    return replace(bb, points_mm=new, length_mm=length_mm, transition_s_mm=bb.transition_s_mm - (bb.length_mm - length_mm))
 
 
 def _straight_end(bb, voxel_mm: float):
@@ -745,6 +745,7 @@ def _backbone(model: PaperModel, names, carved, silhouettes: dict, centerlines: 
                         params.backbone, voxel_size_mm=carved.voxel_size_mm,
                         bridge_check=silhouette_bridge_check(cameras, sils, carved.voxel_size_mm))
     total = int(carved.points_mm.shape[0])
+    voxel_mm = float(np.max(carved.voxel_size_mm))  # the largest edge: what the straightening and the trim allow for
     if params.max_dropped_fraction < 1.0 and bb.n_dropped > params.max_dropped_fraction * total:
         # A piece of the robot the backbone could not bridge to: which piece
         # is the robot, and what joins them, is a guess (wide-5-1: the distal
@@ -752,13 +753,13 @@ def _backbone(model: PaperModel, names, carved, silhouettes: dict, centerlines: 
         raise FrameError(f"the carved robot is in pieces the backbone cannot join: {bb.n_dropped} of {total} voxels "
                          f"({100.0 * bb.n_dropped / total:.0f} %) left out")
     if any(base_borders(model.rig[n], model.rig.base_point_world_mm) for n in names):
-        bb = _continue_to_border(model.rig, names, _straight_start(bb, float(np.max(carved.voxel_size_mm))))
+        bb = _continue_to_border(model.rig, names, _straight_start(bb, voxel_mm))
     else:
         bb = _continue_to_base(model.rig, bb, params.max_base_gap_mm)
     if params.subvoxel is not None:
         bb = _refined(cameras, [centerlines[n] for n in names], [disks[n] for n in names], bb, carved.voxel_size_mm, params)
-        bb = _straight_end(bb, float(np.max(carved.voxel_size_mm)))
-        bb = _trim_tip(cameras, sils, bb, 4.0 * float(np.max(carved.voxel_size_mm)))
+        bb = _straight_end(bb, voxel_mm)
+        bb = _trim_tip(cameras, sils, bb, 4.0 * voxel_mm)
     return bb
 
 
