@@ -700,6 +700,12 @@ def _beyond_angle(smp: _ViewSamples, phi_tip: float) -> int | None:
     return None if d[0] == 0.0 or beyond.size == 0 else int(beyond[0])
 
 
+def _all_beyond(phi: np.ndarray, phi_end: float, phi_start: float) -> bool:
+    """Whether every epipolar-plane angle ``phi`` lies beyond ``phi_end`` as seen from ``phi_start`` (rad)."""
+    side = np.sign(phi_end - phi_start)
+    return bool(side != 0 and np.all(np.sign(phi - phi_end) == side))
+
+
 def _unit_rays(model: FastModel, name: str, uv: np.ndarray) -> np.ndarray:
     d = _rays(model, name, uv)[0]
     return d / np.linalg.norm(d, axis=1, keepdims=True)
@@ -755,7 +761,12 @@ def _guided_candidates(model: FastModel, views: dict, n: str, other: str, step_p
     vs, vl = views[n], views[other]
     smp = _view_samples(model, other, vl, step_px)
     end = (vs.end_px - vs.shift_px)[None]
-    i = _beyond_angle(smp, float(_phi_at(model, n, end)[0]))
+    phi_end = float(_phi_at(model, n, end)[0])
+    i = _beyond_angle(smp, phi_end)
+    if i is None and _all_beyond(smp.phi, phi_end, float(_phi_at(model, n, vs.points_px[:1] - vs.shift_px)[0])):
+        # ``other`` first sees the tube beyond where ``n`` lost it (its base out of view, or cut at the border,
+        # short of ``n``'s end: wide-2-6 frame 2): the path starts on ``other``'s first ray.
+        i = 1
     if i is None or len(smp.s) - i < 8:
         return None
     ep = model.epipolar
@@ -765,6 +776,7 @@ def _guided_candidates(model: FastModel, views: dict, n: str, other: str, step_p
         uv = uv[np.round(np.linspace(0, len(uv) - 1, _GUIDED_MAX_RAYS + 1)).astype(int)]
     dirs = _unit_rays(model, other, uv)
     x0 = triangulate_rays(c_l, dirs[:1], c_s, _unit_rays(model, n, end))[0][0]
+    x0 = c_l + float(np.dot(x0 - c_l, dirs[0])) * dirs[0]  # on the first ray: where it passes nearest n's end ray
     depth_mm = float(np.linalg.norm(x0 - c_l))
     step_mm = depth_mm * np.arccos(np.clip(np.einsum("ij,ij->i", dirs[1:], dirs[:-1]), -1.0, 1.0))
     reach_mm = _GUIDED_STRETCH * np.cumsum(step_mm) + 1.0
@@ -921,33 +933,75 @@ class FastReconstructor:
         smp = _view_samples(model, name, views[name], params.sample_step_px)
         return (smp, samples[1]) if name == model.pair[0] else (samples[0], smp)
 
+    def _retry(self, frames: dict, views: dict, samples: tuple, name: str, better, **kw) -> tuple:
+        """:meth:`_again`, kept only where ``better(samples)`` says the second try improves on the first (else
+        ``views`` and the samples are as they were, as they are where it raises :class:`FrameError`):
+        ``(samples, rejected)``, the second try's centerline where it was not kept (else None)."""
+        kept = views[name], samples
+        try:
+            samples = self._again(frames, views, samples, name, **kw)
+            if better(samples):
+                return samples, None
+        except FrameError:
+            pass
+        rejected = views[name] if views[name] is not kept[0] else None
+        views[name] = kept[0]
+        return kept[1], rejected
+
     def _agreeing(self, frames: dict, views: dict, sa_: _ViewSamples, sb_: _ViewSamples, n: str) -> tuple:
         """The samples of a pair whose tips disagree (view ``n`` ends short), after second tries, and why the
         method cannot vouch for the shape (None: the tips now agree): ``(sa_, sb_, reason)``.
 
-        One view lost a faint stretch of tube before its tip: it is followed once more, more sensitively.
-        If it still ends short, the other view may have bridged a gap onto backdrop beyond the tip: that
-        one is followed again without bridging. Where they still disagree, both are cut to what both
-        see (:func:`_common_part`).
+        One view lost a faint stretch of tube before its tip: it is followed once more, more sensitively (kept
+        where it then ends nearer the other's tip). If it still ends short, the other view may have bridged a
+        gap onto backdrop beyond the tip: that one is followed again without bridging (kept unless it then ends
+        short of the first). Where they still disagree, the lost stretch is looked for along the other view's
+        rays (:meth:`_found_again`), and failing that both are cut to what both see (:func:`_common_part`).
         """
         model, params = self.model, self.params
         a, b = model.pair
-        sa_, sb_ = self._again(frames, views, (sa_, sb_), n, follow_min_dn=params.retry_min_dn, bridge_gaps=False)
+        other = b if n == a else a
+        short = _tip_mismatch(model, views, sa_, sb_)[n]
+        (sa_, sb_), sensitive = self._retry(frames, views, (sa_, sb_), n,
+                                            lambda s: _tip_mismatch(model, views, *s)[n] < short,
+                                            follow_min_dn=params.retry_min_dn, bridge_gaps=False)
         if _short_view(model, views, sa_, sb_, params) == n:
-            sa_, sb_ = self._again(frames, views, (sa_, sb_), b if n == a else a, bridge_gaps=False)
-        n = _short_view(model, views, sa_, sb_, params)
-        if n is not None:
-            found = _lost_stretch(model, params, views, frames[n], n, b if n == a else a)
+            # Without its bridges the other view must not end short of this one: then what it bridged was tube
+            # (a faint stretch it crossed), not backdrop beyond the tip (wide-2-6 frame 0: the side view fell
+            # back to its first 98 of 587 centres), and this view is looked for along its bridged centerline.
+            (sa_, sb_), _ = self._retry(frames, views, (sa_, sb_), other,
+                                        lambda s: _short_view(model, views, *s, params) != other, bridge_gaps=False)
+        m = _short_view(model, views, sa_, sb_, params)
+        if m is not None:
+            # The search starts at the short view's end; the sensitive try's end, where it was not kept, is a
+            # second start (wide-2-6 frame 0: the first end lies on a speck of clutter on the tube).
+            starts = [views[m]] + ([sensitive] if m == n and sensitive is not None else [])
+            found = self._found_again(frames, views, (sa_, sb_), m, starts)
             if found is not None:
-                gained = found.s_range[1] - views[n].s_range[1]
-                views[n] = found
-                smp = _view_samples(model, n, found, params.sample_step_px)
-                sa_, sb_ = (smp, sb_) if n == a else (sa_, smp)
-                sa_, sb_, reason = _common_part(model, views, sa_, sb_, params)
-                # The stretch found along the rays is where this view shows the tube faintly: not vouched for.
-                return sa_, sb_, reason or (f"{n} lost {gained:.0f} px of the tube before its tip; found again along "
-                                            f"{b if n == a else a}'s rays, where {n} shows it faintly")
+                return found
         return _common_part(model, views, sa_, sb_, params)
+
+    def _found_again(self, frames: dict, views: dict, samples: tuple, n: str, starts: list):
+        """The pair's samples with view ``n``'s lost stretch found along the other view's rays
+        (:func:`_lost_stretch`) from the first of ``starts`` (view ``n``'s centerlines) it is found from,
+        ``views`` updated in place, and the reason the frame is suspect: ``(sa_, sb_, reason)``; None where
+        it is found from none."""
+        model, params = self.model, self.params
+        a, b = model.pair
+        other = b if n == a else a
+        for start in starts:
+            found = _lost_stretch(model, params, {**views, n: start}, frames[n], n, other)
+            if found is None:
+                continue
+            gained = found.s_range[1] - views[n].s_range[1]
+            views[n] = found
+            smp = _view_samples(model, n, found, params.sample_step_px)
+            sa_, sb_ = (smp, samples[1]) if n == a else (samples[0], smp)
+            sa_, sb_, reason = _common_part(model, views, sa_, sb_, params)
+            # The stretch found along the rays is where this view shows the tube faintly: not vouched for.
+            return sa_, sb_, reason or (f"{n} lost {gained:.0f} px of the tube before its tip; found again along "
+                                        f"{other}'s rays, where {n} shows it faintly")
+        return None
 
     def _matched(self, frames: dict, views: dict, detail: dict) -> tuple:
         """The views' samples, after second tries where their tips disagree (:meth:`_agreeing`), matched and

@@ -327,6 +327,36 @@ def test_a_backbone_that_leaves_a_views_centerline_is_suspect(synthetic):
     assert reason is not None and reason.startswith("top: the backbone leaves this view's centerline"), reason
 
 
+def _along_tube(cam, pts: np.ndarray, width_px: int) -> np.ndarray:
+    """The (768, 1024) pixels within ``width_px / 2`` of the projected polyline ``pts`` (world mm)."""
+    mask = np.zeros((768, 1024), np.uint8)
+    uv = np.round(cam.project(pts)[0]).astype(np.int32)
+    cv2.polylines(mask, [uv.reshape(-1, 1, 2)], False, 1, width_px)
+    return mask > 0
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_view_that_bridged_a_faint_stretch_keeps_its_bridge(synthetic, seed):
+    """The side view shows the tube with a 2 mm gap at 20 mm (bridged by the coarse path); the top view shows
+    it from 50 mm on at 3.5 % of its contrast (lost there). Followed again without bridging, the side view
+    would end at its gap, short of the top view: so its bridged centerline is kept, and the backbone runs
+    to where both views see the tube, 50 mm, `suspect` for the lost tip. (Without the rule the side view
+    fell back to its gap and the frame was refused: 'the views disagree on the tip: side's ends 267 px ...'.)"""
+    rig, backgrounds, _ = synthetic
+    rng = np.random.default_rng(seed)
+    s, pts, radii = robot_backbone()
+    frames = {n: f.astype(np.float32) for n, f in _frames(rig, rng, pts, radii).items()}
+    plain = {n: _backdrop(rng, 1.01) for n in rig.names}
+    gap = _along_tube(rig["side"], pts[(s > 19.0) & (s < 21.0)], 24)
+    frames["side"][gap] = plain["side"][gap]
+    faint = _along_tube(rig["top"], pts[s > 50.0], 28)
+    frames["top"][faint] = plain["top"][faint] + 0.035 * (frames["top"][faint] - plain["top"][faint])
+    r = prepare("fast", rig, backgrounds)({n: np.clip(f, 0, 255).astype(np.uint8) for n, f in frames.items()})
+    assert r.suspect_reason is not None and "the views disagree on the tip: top's ends" in r.suspect_reason, r.suspect_reason
+    off_mm = point_to_polyline_distances(r.points_world_mm, pts)
+    assert 45.0 < r.length_mm < 55.0 and off_mm.mean() < 0.2, (r.length_mm, off_mm.mean())
+
+
 def test_coarse_difference_does_not_cancel_across_a_thin_tube(synthetic):
     """A 4 px band, dark at its rims and bright in its middle (a thin tube with a highlight), lying on the
     central 2x2 pixels of a row of coarse blocks: their differences from the background sum to ~0, their
