@@ -92,7 +92,8 @@ def test_tuner_recovers_a_threshold_that_loses_the_robot(session_dirs):
     """Starting from a threshold at which every frame fails (0.7 on this dim scene, without the hysteresis), the
     search must find one at which none fails and the error is within a voxel; the sensitivity sweep covers the range."""
     base = _without_hysteresis(0.7)
-    res = tune("paper", session_dirs, base, knobs=(THRESHOLD,), maxiter=3, popsize=5, seed=3, sensitivity_points=4)
+    res = tune("paper", session_dirs, base, knobs=(THRESHOLD,), maxiter=3, popsize=5, seed=3, sensitivity_points=4,
+               workers=0)
     assert res.default.failures == 4
     assert res.tuned.failures == 0
     assert res.tuned.mean_error_mm <= 1.0  # mm; the voxel edge here is ~1 mm
@@ -105,7 +106,7 @@ def test_tuner_recovers_a_threshold_that_loses_the_robot(session_dirs):
 def test_cli_writes_a_parameter_file_that_reconstruct_reads(cache, session_dirs, tmp_path, capsys):
     out = tmp_path / "tuned.toml"
     rc = main(["tune", str(SCENE), "--method", "paper", "--knobs", "silhouette.threshold,background.k", "--maxiter", "1",
-               "--popsize", "2", "--points", "3", "--cache", str(cache), "--out", str(out), "--quiet"])
+               "--popsize", "2", "--points", "3", "--cache", str(cache), "--out", str(out), "--workers", "0", "--quiet"])
     assert rc == 0
     report = tmp_path / "tuned-tune"
     for name in ("history.csv", "summary.json", "sensitivity.png",
