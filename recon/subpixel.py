@@ -1478,11 +1478,16 @@ def _principal_axis(points: np.ndarray) -> np.ndarray:
 
 
 def _border_error(model: ViewModel, seed: np.ndarray, half: int) -> FrameError:
-    """The error for a tube followed to within ``half`` px of the image border at ``seed`` (px)."""
+    """The error for a tube followed to within ``half`` px of the image border at ``seed`` (px).
+
+    The message names both causes: on textured backdrops the follower also runs on along a backdrop line to
+    the border while the robot is well inside (wide-2-49 frame 1, side: bricks' mortar, the tip 554 px from
+    that border)."""
     H, W = model.shape
     u, v = seed
     out = [b for b, o in zip(_BORDER_NAMES, (u < half, v < half, u > W - 1 - half, v > H - 1 - half)) if o]
-    return FrameError(f"robot partly out of view (the tube runs to within {half} px of the {' and '.join(out)} image border)", model.name)
+    return FrameError(f"robot partly out of view (the tube runs to within {half} px of the {' and '.join(out)} image border), "
+                      "or the tube was followed onto the backdrop to that border", model.name)
 
 
 def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step, tolerance, batch: int = 4,
