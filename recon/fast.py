@@ -700,12 +700,6 @@ def _beyond_angle(smp: _ViewSamples, phi_tip: float) -> int | None:
     return None if d[0] == 0.0 or beyond.size == 0 else int(beyond[0])
 
 
-def _all_beyond(phi: np.ndarray, phi_end: float, phi_start: float) -> bool:
-    """Whether every epipolar-plane angle ``phi`` lies beyond ``phi_end`` as seen from ``phi_start`` (rad)."""
-    side = np.sign(phi_end - phi_start)
-    return bool(side != 0 and np.all(np.sign(phi - phi_end) == side))
-
-
 def _unit_rays(model: FastModel, name: str, uv: np.ndarray) -> np.ndarray:
     d = _rays(model, name, uv)[0]
     return d / np.linalg.norm(d, axis=1, keepdims=True)
@@ -761,12 +755,7 @@ def _guided_candidates(model: FastModel, views: dict, n: str, other: str, step_p
     vs, vl = views[n], views[other]
     smp = _view_samples(model, other, vl, step_px)
     end = (vs.end_px - vs.shift_px)[None]
-    phi_end = float(_phi_at(model, n, end)[0])
-    i = _beyond_angle(smp, phi_end)
-    if i is None and _all_beyond(smp.phi, phi_end, float(_phi_at(model, n, vs.points_px[:1] - vs.shift_px)[0])):
-        # ``other`` first sees the tube beyond where ``n`` lost it (its base out of view, or cut at the border,
-        # short of ``n``'s end: wide-2-6 frame 2): the path starts on ``other``'s first ray.
-        i = 1
+    i = _beyond_angle(smp, float(_phi_at(model, n, end)[0]))
     if i is None or len(smp.s) - i < 8:
         return None
     ep = model.epipolar
@@ -776,7 +765,6 @@ def _guided_candidates(model: FastModel, views: dict, n: str, other: str, step_p
         uv = uv[np.round(np.linspace(0, len(uv) - 1, _GUIDED_MAX_RAYS + 1)).astype(int)]
     dirs = _unit_rays(model, other, uv)
     x0 = triangulate_rays(c_l, dirs[:1], c_s, _unit_rays(model, n, end))[0][0]
-    x0 = c_l + float(np.dot(x0 - c_l, dirs[0])) * dirs[0]  # on the first ray: where it passes nearest n's end ray
     depth_mm = float(np.linalg.norm(x0 - c_l))
     step_mm = depth_mm * np.arccos(np.clip(np.einsum("ij,ij->i", dirs[1:], dirs[:-1]), -1.0, 1.0))
     reach_mm = _GUIDED_STRETCH * np.cumsum(step_mm) + 1.0

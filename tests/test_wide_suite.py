@@ -49,7 +49,7 @@ def test_fast_meets_its_pixel_bounds(report):
 
 
 def test_fast_reconstructs_95_percent(report):
-    """12 of 12 frames since the long view keeps a bridge that was tube (wide-21-3 frame 1 was refused)."""
+    """12 of 12 frames since d29ad76 (the second tries kept only where they help); wide-21-3 frame 1 was refused."""
     a = report[0]["methods"]["fast"]
     assert a["reconstructed_fraction"] >= 0.95, a
 
