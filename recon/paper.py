@@ -491,22 +491,31 @@ def _onto_line(points, origin, other):
     return on_line, along, np.linalg.norm(points - on_line, axis=1)
 
 
-def _straight_start(bb, voxel_mm: float):
+def _straight_start(bb, voxel_size_mm):
     """The backbone with its first ~5 mm put onto the line of the next ~5 mm, where they curl off it by more
-    than ``voxel_mm``.
+    than the voxel's size in the direction they curl (the norm of the edges weighted by that direction).
 
     Where the robot enters across an image border at a shallow angle, that border's plane cuts the carved tube
     at a slant; the ordering's bins are geodesic distances from the cut's corner and stay slanted for a few
     diameters, so the backbone's first millimetres curl towards the corner (seen: wide-3-21 frame 1, 3.3 mm
     off over its first 5.5 mm; wide-3-46 frame 1, 1.8 mm over 3.5 mm). A precurved tube bends ~0.1 mm off
-    5 mm of chord: a curl of more than a voxel is the cut's. The points keep their distances along the line.
+    5 mm of chord: a curl of more than a voxel is the cut's. The voxel is measured across the curl, not by its largest
+    edge: a 100^3 grid over a long, thin robot has voxels 4x longer along the tube than across it
+    (wide-2-1 frame 0: a 0.95 mm curl across 0.27 mm voxels, under the 1.09 mm edge along the tube,
+    left the start 12 px footprints off). The points keep their distances along the line. Not for a base in
+    view: there the line of the next 5 mm, extrapolated back, leaves a tube bent near its base (wide-2-14
+    frame 0: 7 -> 14 px footprints).
+
+    ``voxel_size_mm``: the voxel edge (mm), one number or one per world axis.
     """
     pts = bb.points_mm
     k = _chord_index(pts, bb.length_mm)
     if 2 * k >= len(pts):
         return bb
     on_line, _, off = _onto_line(pts[:k], pts[k], pts[2 * k])
-    if float(np.max(off)) <= voxel_mm:
+    across = (pts[:k] - on_line) / np.maximum(off, 1e-12)[:, None]
+    width_mm = np.linalg.norm(across * np.broadcast_to(np.asarray(voxel_size_mm, float), (3,)), axis=1)
+    if np.all(off <= width_mm):
         return bb
     new = np.concatenate([on_line, pts[k:]])
     length_mm = float(arc_length(new)[-1])
@@ -753,7 +762,7 @@ def _backbone(model: PaperModel, names, carved, silhouettes: dict, centerlines: 
         raise FrameError(f"the carved robot is in pieces the backbone cannot join: {bb.n_dropped} of {total} voxels "
                          f"({100.0 * bb.n_dropped / total:.0f} %) left out")
     if any(base_borders(model.rig[n], model.rig.base_point_world_mm) for n in names):
-        bb = _continue_to_border(model.rig, names, _straight_start(bb, voxel_mm))
+        bb = _continue_to_border(model.rig, names, _straight_start(bb, carved.voxel_size_mm))
     else:
         bb = _continue_to_base(model.rig, bb, params.max_base_gap_mm)
     if params.subvoxel is not None:

@@ -223,12 +223,24 @@ def test_a_start_curled_by_the_border_cut_is_put_back_on_the_tube():
     from recon.paper import _straight_start
 
     curled = _backbone_along_x(lambda x: np.where(x < 3.0, 0.5 * (3.0 - x), 0.0))
-    out = _straight_start(curled, voxel_mm=0.6)
+    out = _straight_start(curled, 0.6)
     assert np.abs(out.points_mm[:, 1]).max() < 1e-9
     np.testing.assert_allclose(out.points_mm[:, 0], curled.points_mm[:, 0])
     assert out.length_mm == pytest.approx(40.0) and out.transition_s_mm < curled.transition_s_mm
     bent = _backbone_along_x(lambda x: 0.1 * ((x - 10.0) / 5.0) ** 2)
-    assert _straight_start(bent, voxel_mm=0.6) is bent
+    assert _straight_start(bent, 0.6) is bent
+
+
+def test_a_curl_across_thin_voxels_is_measured_against_their_width_across():
+    """A 100^3 grid over a long, thin robot has voxels longer along the tube than across it: a 0.8 mm curl
+    across the tube (y) is four voxels there and is straightened, though it is under the 1.2 mm edge along x.
+    The same curl in voxels 1.2 mm every way is voxel rounding and stays."""
+    from recon.paper import _straight_start
+
+    curled = _backbone_along_x(lambda x: np.where(x < 2.0, 0.4 * (2.0 - x), 0.0))
+    out = _straight_start(curled, (1.2, 0.2, 0.2))
+    assert np.abs(out.points_mm[:, 1]).max() < 1e-9
+    assert _straight_start(curled, (1.2, 1.2, 1.2)) is curled
 
 
 def test_a_tip_hooked_by_the_silhouette_ends_is_put_back_on_the_tube():
