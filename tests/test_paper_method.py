@@ -250,10 +250,20 @@ def test_a_tip_hooked_by_the_silhouette_ends_is_put_back_on_the_tube():
     from recon.paper import _straight_end
 
     hooked = _backbone_along_x(lambda x: np.where(x > 39.0, 0.6 * (x - 39.0), 0.0))
-    out = _straight_end(hooked, voxel_mm=0.6)
+    out = _straight_end(hooked, 0.6)
     assert np.abs(out.points_mm[:, 1]).max() < 1e-9
     np.testing.assert_allclose(out.tip_mm, [40.0, 0.0, 0.0], atol=1e-9)
     assert out.length_mm == pytest.approx(40.0)
     for radius_mm, start_mm in ((100.0, 20.0), (15.0, 32.0)):  # 15 mm: the end ~0.8 mm off the line of the 5 mm before
         bent = _backbone_along_x(lambda x: radius_mm - np.sqrt(radius_mm ** 2 - np.maximum(x - start_mm, 0.0) ** 2))
-        assert _straight_end(bent, voxel_mm=1.2) is bent
+        assert _straight_end(bent, 1.2) is bent
+
+
+def test_a_hook_across_thin_voxels_is_measured_against_their_width_across():
+    """A 0.3 mm hook across the tube (y) is 1.5 voxels of 0.2 mm there and is straightened, though it is
+    under half the 1.2 mm edge along x; in voxels 1.2 mm every way it is voxel rounding and stays."""
+    from recon.paper import _straight_end
+
+    hooked = _backbone_along_x(lambda x: np.where(x > 39.0, 0.3 * (x - 39.0), 0.0))
+    assert np.abs(_straight_end(hooked, (1.2, 0.2, 0.2)).points_mm[:, 1]).max() < 1e-9
+    assert _straight_end(hooked, 1.2) is hooked
