@@ -50,7 +50,6 @@ from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
-from scipy.ndimage import median_filter
 
 from ._kernels import (
     bfs_path_nb,
@@ -62,6 +61,7 @@ from ._kernels import (
     profile_values_nb,
     profiles_at_seeds_nb,
     ridge_hits_nb,
+    running_rank_nb,
     spline_basis_nb,
     spline_eval_nb,
     spline_fit_nb,
@@ -1345,7 +1345,7 @@ def _fit_centres(s, c, ok, prof, params, wmin, wmax):
     # (9 profiles, ~18 px: a step from the outer to the inner tube is kept).
     g = np.flatnonzero(ok)
     if g.size >= 9:
-        ok[g[width[g] > 1.3 * median_filter(width[g], 9, mode="nearest")]] = False
+        ok[g[width[g] > 1.3 * running_rank_nb(width[g], 9, 4)]] = False
     return fitter, coef, ok, d, width
 
 

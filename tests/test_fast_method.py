@@ -601,3 +601,14 @@ def test_first_stretch_lost_in_the_backdrop_is_joined_to_the_base(synthetic):
     tip_uv = rig["side"].project(pts[-1:])[0][0]
     assert np.linalg.norm(coarse.path_px[0] - [u0, v0]) < 12.0, coarse.path_px[0]
     assert np.linalg.norm(coarse.path_px[-1] - tip_uv) < 24.0, (coarse.path_px[-1], tip_uv)
+
+
+@pytest.mark.parametrize("size, rank", [(9, 4), (41, 32), (3, 0), (5, 4)])
+def test_the_running_rank_kernel_is_scipys_rank_filter(size, rank):
+    """The compiled running rank equals SciPy's rank filter with the end values repeated, on random, tied
+    and short series (shorter than the window too)."""
+    from scipy.ndimage import rank_filter
+
+    rng = np.random.default_rng(size + rank)
+    for x in (rng.normal(size=300), np.round(rng.normal(size=120)), np.ones(7), rng.normal(size=2)):
+        np.testing.assert_array_equal(_kernels.running_rank_nb(x, size, rank), rank_filter(x, rank, size=size, mode="nearest"))
