@@ -1638,6 +1638,84 @@ def _gray_frame(model: ViewModel, frame) -> np.ndarray:
     return frame
 
 
+#: A cross-section narrower than this fraction of the full-width ones near it shows part of the tube only.
+RIM_NARROW_FRACTION = 0.8
+
+
+def _rim_lit_centres(fitter, s, c, ok, d, width, params) -> tuple:
+    """Centres ``c`` (n, 2, px) and widths (px) with the narrow cross-sections that show a lit rim only moved
+    to the tube's middle.
+
+    A shiny tube in front of a backdrop of its own gray shows, on some cross-sections, only the highlight
+    along its lit rim: one edge found is the tube's, the other lies inside it, and the centre sits off the
+    axis by half the width missing (wide-1-60's side view: 3.5-5 px narrow of 12-18 px, 2-5 px off, always
+    towards the lit rim). Between cross-sections of full width (:data:`RIM_NARROW_FRACTION` of the
+    running 80th percentile of widths, 41 profiles) at most two knot spacings apart, a narrow one whose
+    centre is off their curve towards one side by 0.8-1.2 times half its missing width (at least 1 px)
+    keeps its outer edge and takes the nearest full one's width (running median of 9). Any other narrow
+    cross-section is left as it was (no full ones on both sides: which rim is lit is not known; full ones
+    beside it more than 2 px off their curve: they may be the tube with backdrop beside it). ``d``: unit
+    tangents (n, 2); ``ok``: the accepted cross-sections.
+    """
+    g = np.flatnonzero(ok)
+    if g.size < 16:
+        return c, width
+    full = np.zeros(len(s), bool)
+    full[g] = width[g] >= RIM_NARROW_FRACTION * running_rank_nb(width[g], 41, 32)  # 80th percentile
+    f = np.flatnonzero(full)
+    cand = _rim_lit_candidates(s, c, ok & ~full, f, d, width, 2.0 * params.spline_knot_px)
+    if cand is None:
+        return c, width
+    narrow, before, after, normal = cand
+    coef, _ = fitter.robust(c, full, 4.0 * params.outlier_min_px, params.outlier_sigma)
+    ref = fitter.values(coef)
+    off = np.sum((c[narrow] - ref[narrow]) * normal, axis=1)
+    near = np.where(s[narrow] - s[before] < s[after] - s[narrow], before, after)
+    full_width = width.copy()
+    full_width[f] = running_rank_nb(width[f], 9, 4)  # median: one odd full cross-section sets no width
+    half_missing = 0.5 * (full_width[near] - width[narrow])
+    # The full ones must lie near their curve (a wider cross-section can also be the tube with backdrop
+    # beside it: wide-3-7's inner tube, 6 px, read 10-13 px, scattered 1-4 px off the axis; a full one can
+    # itself miss a fifth of the width), and the narrow one's outer edge must be theirs.
+    clean = np.maximum(np.linalg.norm(c[before] - ref[before], axis=1), np.linalg.norm(c[after] - ref[after], axis=1)) <= 2.0
+    lit = (clean & (half_missing >= 1.0)
+           & (np.abs(off) >= 0.8 * half_missing) & (np.abs(off) <= 1.2 * half_missing))
+    i = narrow[lit]
+    c, width = c.copy(), width.copy()
+    c[i] -= (np.sign(off[lit]) * half_missing[lit])[:, None] * normal[lit]
+    width[i] = full_width[near[lit]]
+    return c, width
+
+
+def _rim_lit_candidates(s, c, narrow, f, d, width, max_gap):
+    """The narrow cross-sections (bool mask ``narrow``) that may show a lit rim only, screened cheaply
+    against the chord between the full ones (indices ``f``) on either side, at most ``max_gap`` (px of ``s``)
+    apart: ``(indices, full before, full after, unit normals)``, or None.
+
+    Between full ones only: beyond the last, their curve is extrapolated (past the outer tube's end it
+    leaves the inner tube, whose narrower cross-sections would seem off it). Off the chord by half to 1.5
+    times half the missing width (the nearer full one's, at least 1 px): most frames have none, and the
+    spline through the full ones is not fitted.
+    """
+    narrow = np.flatnonzero(narrow)
+    if f.size < 8 or narrow.size == 0:
+        return None
+    k = np.searchsorted(s[f], s[narrow])
+    inside = (k > 0) & (k < f.size)
+    narrow, k = narrow[inside], k[inside]
+    before, after = f[k - 1], f[k]
+    gap = s[after] - s[before]
+    near = np.where(s[narrow] - s[before] < s[after] - s[narrow], before, after)
+    half_missing = 0.5 * (width[near] - width[narrow])
+    chord = c[before] + ((s[narrow] - s[before]) / np.maximum(gap, 1e-9))[:, None] * (c[after] - c[before])
+    normal = np.c_[-d[narrow, 1], d[narrow, 0]]
+    off = np.abs(np.sum((c[narrow] - chord) * normal, axis=1))
+    keep = (gap <= max_gap) & (half_missing >= 1.0) & (off >= 0.5 * half_missing) & (off <= 1.5 * half_missing)
+    if not keep.any():
+        return None
+    return narrow[keep], before[keep], after[keep], normal[keep]
+
+
 def _final_curve(name: str, fitter, s, c, ok, end_px, params) -> tuple:
     """The robust spline through the accepted centres ``c[ok]`` and the tip ``end_px`` (px) moved onto its end tangent.
 
@@ -1857,6 +1935,7 @@ def extract_view(model: ViewModel, frame: np.ndarray, params: ViewParams, roi=No
         end_t = 0.0
     # Profiles within about a radius of the silhouette's end are cut by the end cap.
     ok &= s <= sb + end_t - 1.2 * r_end - 1.0
+    c, width = _rim_lit_centres(fitter, s, c, ok, fit.d, width, params)
     spl, good, s_end, t_fit, end_px = _final_curve(model.name, fitter, s, c, ok, p_end + end_t * t_end, params)
     end_px = _tip_along_final_curve(model, frame, coarse.coefficients, spl(s_end), t_fit, t_end, end_px, r_end,
                                     follow["threshold1"])

@@ -603,6 +603,53 @@ def test_first_stretch_lost_in_the_backdrop_is_joined_to_the_base(synthetic):
     assert np.linalg.norm(coarse.path_px[-1] - tip_uv) < 24.0, (coarse.path_px[-1], tip_uv)
 
 
+def _rim_lit_frame(rng, cam, pts, radius_mm, rim_only):
+    """A tube of ``radius_mm`` along ``pts`` whose body differs from the backdrop by 60 gray levels, except
+    where ``rim_only`` (per point) is set: there the body differs by 1 and only a highlight along one rim
+    (a third of the width, +60) stands out, as a shiny tube before a backdrop of its own gray looks."""
+    img = _backdrop(rng, 1.01)
+    uv, z = cam.project(pts)
+    ray = pts - np.linalg.inv(cam.T_cam_world)[:3, 3]
+    side = np.cross(np.gradient(pts, axis=0), ray)
+    side /= np.linalg.norm(side, axis=1, keepdims=True)
+    # Pieces drawn one by one, each a run of points with one look (overlapping by one point).
+    cuts = np.flatnonzero(np.diff(rim_only.astype(int))) + 1
+    for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(pts)]):
+        piece = slice(a, min(b + 1, len(pts)))
+        cov = draw_tube(np.zeros(img.shape), cam, pts[piece], np.full(piece.stop - a, radius_mm), level=1.0)
+        if not rim_only[a]:
+            img += 60.0 * cov
+            continue
+        rim = draw_tube(np.zeros(img.shape), cam, pts[piece] + (2.0 / 3.0) * radius_mm * side[piece],
+                        np.full(piece.stop - a, radius_mm / 3.0), level=1.0)
+        img += 1.0 * cov + 60.0 * np.minimum(rim, cov)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("every_mm", [8.0, None])
+def test_a_tube_showing_only_its_lit_rim_keeps_its_centres_on_the_axis(synthetic, every_mm):
+    """Where a tube shows only the highlight along its lit rim (a third of its width) between stretches of
+    full contrast, its centres are put back on the axis by half the width missing (from 4.6 px off to under
+    0.5 px at the median); a tube lit on its rim over its whole length keeps them where they were."""
+    rig, backgrounds, rng = synthetic
+    s, pts, _ = robot_backbone(length=70.0)
+    rim_only = (s // every_mm) % 2 == 1 if every_mm else np.ones(len(s), bool)
+    params = FastParams()
+    model = prepare_fast(rig, backgrounds, params)
+    cam = rig["top"]
+    vc = extract_view(model.views["top"], _rim_lit_frame(rng, cam, pts, 0.8, rim_only), params.view)
+    true_uv, z = cam.project(pts)
+    diameter_px = 2 * 0.8 * cam.K[0, 0] / np.median(z)
+    d = point_to_polyline_distances(vc.points_px, true_uv)
+    on_rim = rim_only[np.argmin(np.linalg.norm(vc.points_px[:, None] - true_uv[None], axis=2), axis=1)]
+    narrow_off = diameter_px / 3.0  # the highlight's middle is a third of the diameter off the axis
+    if every_mm:
+        assert np.median(d[on_rim]) < 0.5 and np.median(d[~on_rim]) < 0.2, np.median(d[on_rim])
+        assert np.median(np.abs(vc.width_px[on_rim] - diameter_px)) < 1.0
+    else:
+        assert abs(np.median(d) - narrow_off) < 1.0, (np.median(d), narrow_off)
+
+
 @pytest.mark.parametrize("size, rank", [(9, 4), (41, 32), (3, 0), (5, 4)])
 def test_the_running_rank_kernel_is_scipys_rank_filter(size, rank):
     """The compiled running rank equals SciPy's rank filter with the end values repeated, on random, tied
