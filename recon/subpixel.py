@@ -1666,11 +1666,10 @@ def _rim_lit_centres(fitter, s, c, ok, d, width, params) -> tuple:
     cand = _rim_lit_candidates(s, c, ok & ~full, f, d, width, 2.0 * params.spline_knot_px)
     if cand is None:
         return c, width
-    narrow, before, after, normal = cand
+    narrow, before, after, near, normal = cand
     coef, _ = fitter.robust(c, full, 4.0 * params.outlier_min_px, params.outlier_sigma)
     ref = fitter.values(coef)
     off = np.sum((c[narrow] - ref[narrow]) * normal, axis=1)
-    near = np.where(s[narrow] - s[before] < s[after] - s[narrow], before, after)
     full_width = width.copy()
     full_width[f] = running_rank_nb(width[f], 9, 4)  # median: one odd full cross-section sets no width
     half_missing = 0.5 * (full_width[near] - width[narrow])
@@ -1690,7 +1689,7 @@ def _rim_lit_centres(fitter, s, c, ok, d, width, params) -> tuple:
 def _rim_lit_candidates(s, c, narrow, f, d, width, max_gap):
     """The narrow cross-sections (bool mask ``narrow``) that may show a lit rim only, screened cheaply
     against the chord between the full ones (indices ``f``) on either side, at most ``max_gap`` (px of ``s``)
-    apart: ``(indices, full before, full after, unit normals)``, or None.
+    apart: ``(indices, full before, full after, the nearer of the two, unit normals)``, or None.
 
     Between full ones only: beyond the last, their curve is extrapolated (past the outer tube's end it
     leaves the inner tube, whose narrower cross-sections would seem off it). Off the chord by half to 1.5
@@ -1713,7 +1712,7 @@ def _rim_lit_candidates(s, c, narrow, f, d, width, max_gap):
     keep = (gap <= max_gap) & (half_missing >= 1.0) & (off >= 0.5 * half_missing) & (off <= 1.5 * half_missing)
     if not keep.any():
         return None
-    return narrow[keep], before[keep], after[keep], normal[keep]
+    return narrow[keep], before[keep], after[keep], near[keep], normal[keep]
 
 
 def _final_curve(name: str, fitter, s, c, ok, end_px, params) -> tuple:
