@@ -1318,6 +1318,14 @@ class _Fitter:
         """The fit at ``s[j]`` alone."""
         return spline_eval_nb(self.idx[j:j + 1], self.b[j:j + 1], coef)[0]
 
+    def values_at(self, coef, j: np.ndarray) -> np.ndarray:
+        """The fit at ``s[j]`` for the indices ``j``."""
+        return spline_eval_nb(self.idx[j], self.b[j], coef)
+
+    def derivatives_at(self, coef, j: np.ndarray) -> np.ndarray:
+        """The fit's derivative at ``s[j]`` for the indices ``j``."""
+        return spline_eval_nb(self.idx[j], self.db[j], coef)
+
     def derivatives(self, coef) -> np.ndarray:
         """The fit's derivative at every ``s``."""
         return spline_eval_nb(self.idx, self.db, coef)
@@ -1715,6 +1723,53 @@ def _rim_lit_candidates(s, c, narrow, f, d, width, max_gap):
     return narrow[keep], before[keep], after[keep], near[keep], normal[keep]
 
 
+def _off_axis_tail(fitter, s, c, ok, width, params) -> np.ndarray:
+    """``ok`` without the centres of the last tube diameter that read wide and lie off the line the centres
+    before them run along.
+
+    Near the tip a profile can cross the end cap at a slant, or reach the backdrop beside it where that is as
+    dark as the tube: it reads wider and its centre lies off the axis. A few such centres at the end of the
+    curve bend the spline's free end towards them (it has nothing beyond to hold it), the robust fit keeps
+    them, and the tip is then measured along that bent tangent (wide-1-44's side view: the last centres read
+    20-23 px of a 10-14 px tube, 4.6-6.1 px off the axis, and the backbone's tip ended 1.1 mm, 11
+    footprints, off the truth; the frame was ``ok``). Over a diameter a tube bends off its tangent line by
+    about a pixel (the material's strain limit). A tail centre is dropped where it is both wider than 1.2
+    times the centres before it and more than a quarter of a width (at least 2 px) off the fitted curve's
+    tangent line at the last of them. The tail must follow them without a gap, at least 8 of them; the
+    widths set its length (the median of the last 40 accepted, robust against the few wide ones). Where
+    the tail is as wide as the tube, its centres are the tube's, even off that line (a tube that bends at
+    its end, seen at a slant).
+    """
+    g = np.flatnonzero(ok)
+    if g.size < 16:
+        return ok
+    diameter = float(np.median(width[g[-40:]]))
+    in_tail = s[g] > s[g[-1]] - diameter
+    tail, head = g[in_tail], g[~in_tail]
+    if head.size < 8 or s[tail[0]] - s[head[-1]] > diameter:
+        return ok
+    wide = width[tail] > _WIDE_TAIL * float(np.median(width[head[-20:]]))
+    if not wide.any():
+        return ok
+    only_head = ok.copy()
+    only_head[tail] = False
+    coef, _ = fitter.robust(c, only_head, 4.0 * params.outlier_min_px, params.outlier_sigma)
+    j = head[-1:]
+    p, t = fitter.values_at(coef, j)[0], _unit(fitter.derivatives_at(coef, j)[0])
+    rel = c[tail] - p
+    off = np.abs(rel[:, 0] * t[1] - rel[:, 1] * t[0])
+    bad = wide & (off > max(2.0, 0.25 * diameter))
+    if not bad.any():
+        return ok
+    ok = ok.copy()
+    ok[tail[bad]] = False
+    return ok
+
+
+#: A tail cross-section wider than this many times the tube before it can be the end cap cut at a slant.
+_WIDE_TAIL = 1.2
+
+
 def _final_curve(name: str, fitter, s, c, ok, end_px, params) -> tuple:
     """The robust spline through the accepted centres ``c[ok]`` and the tip ``end_px`` (px) moved onto its end tangent.
 
@@ -1935,6 +1990,7 @@ def extract_view(model: ViewModel, frame: np.ndarray, params: ViewParams, roi=No
     # Profiles within about a radius of the silhouette's end are cut by the end cap.
     ok &= s <= sb + end_t - 1.2 * r_end - 1.0
     c, width = _rim_lit_centres(fitter, s, c, ok, fit.d, width, params)
+    ok = _off_axis_tail(fitter, s, c, ok, width, params)
     spl, good, s_end, t_fit, end_px = _final_curve(model.name, fitter, s, c, ok, p_end + end_t * t_end, params)
     end_px = _tip_along_final_curve(model, frame, coarse.coefficients, spl(s_end), t_fit, t_end, end_px, r_end,
                                     follow["threshold1"])

@@ -659,3 +659,31 @@ def test_the_running_rank_kernel_is_scipys_rank_filter(size, rank):
     rng = np.random.default_rng(size + rank)
     for x in (rng.normal(size=300), np.round(rng.normal(size=120)), np.ones(7), rng.normal(size=2)):
         np.testing.assert_array_equal(_kernels.running_rank_nb(x, size, rank), rank_filter(x, rank, size=size, mode="nearest"))
+
+
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_a_dark_patch_beside_the_tip_does_not_bend_the_tips_tangent(synthetic, monkeypatch, side):
+    """A patch as dark as the tube beside its last mm (a shadow, a dark stretch of backdrop) widens the last
+    profiles and pulls their centres off the axis; without the tail check those centres bend the curve's
+    end and the tip lands 3.5-8 px off, with it within 2.5 px of the end of the true silhouette."""
+    import recon.subpixel as sp
+
+    rig, backgrounds, rng = synthetic
+    s, pts, radii = robot_backbone()
+    params = FastParams()
+    model = prepare_fast(rig, backgrounds, params)
+    cam = rig["top"]
+    t = pts[-1] - pts[-5]
+    t /= np.linalg.norm(t)
+    n = np.cross(t, [0.0, 0.0, 1.0])
+    n /= np.linalg.norm(n)
+    patch = pts[-1] - 0.5 * t + side * 1.0 * n  # a tube radius of backdrop between it and the tube's axis
+    img = draw_tube(_backdrop(rng, 1.01), cam, pts, radii)
+    frame = np.clip(draw_tube(img, cam, np.stack([patch - 0.6 * t, patch + 0.3 * t]), np.array([0.5, 0.5])), 0, 255).astype(np.uint8)
+    uv, z = cam.project(pts)
+    tangent = (uv[-1] - uv[-3]) / np.linalg.norm(uv[-1] - uv[-3])
+    silhouette_end = uv[-1] + radii[-1] * cam.K[0, 0] / z[-1] * tangent  # the drawn tube's round end
+    off = np.linalg.norm(extract_view(model.views["top"], frame, params.view).end_px - silhouette_end)
+    assert off < 2.5, off
+    monkeypatch.setattr(sp, "_off_axis_tail", lambda fitter, s, c, ok, width, params: ok)
+    assert np.linalg.norm(extract_view(model.views["top"], frame, params.view).end_px - silhouette_end) > 3.0
