@@ -523,3 +523,44 @@ def test_a_stretch_whose_depth_no_view_measures_is_flagged():
 
     assert "near an epipolar plane" in _verdict({"a": {"unmeasured_depth_mm": 40.0}}, SelfCheckParams())
     assert "unmeasured_depth_mm" in FIGURE_LIMITS
+
+
+def _half_hidden(rendered, camera: str, upto_mm: float):
+    """The frame with one side of the tube, along its first ``upto_mm`` mm, drawn in the backdrop's gray (the
+    mean background frame): the other side alone stands out, as where a tube passes before a patch of
+    backdrop of its own gray."""
+    from scipy.spatial import cKDTree
+
+    cam = rendered.rig[camera]
+    keep = rendered.s_mm <= upto_mm
+    uv, _ = cam.project(rendered.truth[keep])
+    r_px = rendered.radii[0] / cam.mm_per_pixel_at(rendered.truth[keep][len(uv) // 2])
+    img = rendered.frame.images[camera].copy()
+    gray = img if img.ndim == 2 else img[..., 0]
+    ys, xs = np.mgrid[0:gray.shape[0], 0:gray.shape[1]]
+    pix = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(float)
+    dist, k = cKDTree(uv).query(pix, distance_upper_bound=r_px + 3.0)
+    near = np.isfinite(dist) & (k < len(uv) - 1)
+    d = np.gradient(uv, axis=0)
+    normal = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.linalg.norm(d, axis=1, keepdims=True)
+    side = np.zeros(len(pix), bool)
+    side[near] = np.sum((pix[near] - uv[k[near]]) * normal[k[near]], axis=1) > 0
+    backdrop = rendered.background[camera].mean(axis=0)
+    hidden = side.reshape(gray.shape)
+    img[hidden] = np.rint(backdrop[hidden] if img.ndim == 2 else backdrop[hidden][:, None]).astype(img.dtype)
+    return {**rendered.frame.images, camera: img}
+
+
+def test_a_stretch_where_one_side_of_the_tube_is_the_backdrops_gray_does_not_move_the_middle(model, rendered, monkeypatch):
+    """Cross-sections whose foreground covers one side of the tube only read its middle half a radius off:
+    they are left out, and the true backbone's centerline figures stay as on the whole tube (under 2 px),
+    where counting them puts them over 2.5 px."""
+    import recon.selfcheck as selfcheck
+
+    images = _half_hidden(rendered, "side", 0.4 * rendered.s_mm[-1])
+    sc = check_backbone(model, images, rendered.truth, rendered.radii)
+    assert sc.ok, sc.reason
+    assert sc.figures["side"]["centerline_max_px"] < 2.0, sc.figures["side"]
+    monkeypatch.setattr(selfcheck, "_PARTIAL_RUN", 0.0)
+    counted = check_backbone(model, images, rendered.truth, rendered.radii)
+    assert counted.figures["side"]["centerline_max_px"] > 2.5, counted.figures["side"]
