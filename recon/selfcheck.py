@@ -44,7 +44,6 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from ._kernels import running_rank_nb
 from .geometry import arc_length, points_at_arc_length, resample_polyline, transform_points
 from .paper import behind_base_pixels
 from .rigcal import RigCalibration
@@ -727,10 +726,6 @@ def _near_foreground(fg: np.ndarray, uv: np.ndarray, tol_px: float) -> np.ndarra
     return hit.any(axis=1)
 
 
-#: A cross-section's run narrower than this share of the runs around it covers part of the tube only.
-_PARTIAL_RUN = 0.8
-
-
 def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_out_px: np.ndarray, r_in_px: np.ndarray,
                      params: SelfCheckParams) -> np.ndarray:
     """Signed distance (px) from each sample to the middle of the foreground run across it; NaN where unclean.
@@ -777,17 +772,6 @@ def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_
     bounded &= inside[rows, lb_c] & inside[rows, rb_c]
     width = (rb - lb - 1) * dt
     good = has & bounded & (width <= 2.0 * (r_out_px + params.explain_tolerance_px)) & (width >= 1.5 * r_in_px)
-    # Where one side of the tube has the backdrop's gray, the run covers the other side only and its middle
-    # is off the axis by half the width missing (wide-2-4's side view: 26-30 px of a 46 px tube before a
-    # bright patch of backdrop; the truth itself read 10 px off the middle). The tube is no narrower towards
-    # its base than towards its tip: a run well narrower than the widest seen from it on to the tip (the
-    # running 80th percentile over 41 sections, so that a few runs widened by clutter do not count; widths
-    # in outer radii, so that depth does not count) is not a clean cross-section.
-    g = np.flatnonzero(good)
-    if g.size >= 9:
-        w = width[g] / r_out_px[g]
-        toward_tip = np.maximum.accumulate(running_rank_nb(w, 41, 32)[::-1])[::-1]
-        good[g[w < _PARTIAL_RUN * toward_tip]] = False
     mid = 0.5 * (t[np.clip(lb + 1, 0, K - 1)] + t[np.clip(rb - 1, 0, K - 1)])
     out[good] = mid[good]
     return out
