@@ -1318,13 +1318,9 @@ class _Fitter:
         """The fit at ``s[j]`` alone."""
         return spline_eval_nb(self.idx[j:j + 1], self.b[j:j + 1], coef)[0]
 
-    def values_at(self, coef, j: np.ndarray) -> np.ndarray:
-        """The fit at ``s[j]`` for the indices ``j``."""
-        return spline_eval_nb(self.idx[j], self.b[j], coef)
-
-    def derivatives_at(self, coef, j: np.ndarray) -> np.ndarray:
-        """The fit's derivative at ``s[j]`` for the indices ``j``."""
-        return spline_eval_nb(self.idx[j], self.db[j], coef)
+    def derivative_at(self, coef, j: int) -> np.ndarray:
+        """The fit's derivative at ``s[j]`` alone."""
+        return spline_eval_nb(self.idx[j:j + 1], self.db[j:j + 1], coef)[0]
 
     def derivatives(self, coef) -> np.ndarray:
         """The fit's derivative at every ``s``."""
@@ -1735,10 +1731,10 @@ def _off_axis_tail(fitter, s, c, ok, width, params) -> np.ndarray:
     footprints, off the truth; the frame was ``ok``). Over a diameter a tube bends off its tangent line by
     about a pixel (the material's strain limit). A tail centre is dropped where it is both wider than 1.2
     times the centres before it and more than a quarter of a width (at least 2 px) off the fitted curve's
-    tangent line at the last of them. The tail must follow them without a gap, at least 8 of them; the
-    widths set its length (the median of the last 40 accepted, robust against the few wide ones). Where
-    the tail is as wide as the tube, its centres are the tube's, even off that line (a tube that bends at
-    its end, seen at a slant).
+    tangent line at the last of them. At least 8 centres must lie before the tail, and no gap longer than
+    the tail between them; the widths set its length (the median of the last 40 accepted, robust against
+    the few wide ones). Where the tail is as wide as the tube, its centres are the tube's, even off that
+    line (a tube that bends at its end, seen at a slant).
     """
     g = np.flatnonzero(ok)
     if g.size < 16:
@@ -1754,8 +1750,8 @@ def _off_axis_tail(fitter, s, c, ok, width, params) -> np.ndarray:
     only_head = ok.copy()
     only_head[tail] = False
     coef, _ = fitter.robust(c, only_head, 4.0 * params.outlier_min_px, params.outlier_sigma)
-    j = head[-1:]
-    p, t = fitter.values_at(coef, j)[0], _unit(fitter.derivatives_at(coef, j)[0])
+    j = int(head[-1])
+    p, t = fitter.value_at(coef, j), _unit(fitter.derivative_at(coef, j))
     rel = c[tail] - p
     off = np.abs(rel[:, 0] * t[1] - rel[:, 1] * t[0])
     bad = wide & (off > max(2.0, 0.25 * diameter))

@@ -677,7 +677,7 @@ def test_a_dark_patch_beside_the_tip_does_not_bend_the_tips_tangent(synthetic, m
     t /= np.linalg.norm(t)
     n = np.cross(t, [0.0, 0.0, 1.0])
     n /= np.linalg.norm(n)
-    patch = pts[-1] - 0.5 * t + side * 1.0 * n  # a tube radius of backdrop between it and the tube's axis
+    patch = pts[-1] - 0.5 * t + side * 1.0 * n  # 1 mm beside the axis: a 0.5 mm patch touching the 0.5 mm tube
     img = draw_tube(_backdrop(rng, 1.01), cam, pts, radii)
     frame = np.clip(draw_tube(img, cam, np.stack([patch - 0.6 * t, patch + 0.3 * t]), np.array([0.5, 0.5])), 0, 255).astype(np.uint8)
     uv, z = cam.project(pts)
