@@ -35,7 +35,7 @@ from recon.camera import Camera  # noqa: E402
 from . import mesh as meshes  # noqa: E402
 from .backdrop import auto_texture_px, backdrop_planes, place_clutter  # noqa: E402
 from .noise import LUMA  # noqa: E402
-from .scene import Scene  # noqa: E402
+from .scene import ACTUATION_UNIT_BOX_BASE_MM, Scene  # noqa: E402
 from .textures import backdrop_texture  # noqa: E402
 
 __all__ = ["SetRenderer", "View", "T_cvcam_glcam"]
@@ -385,7 +385,7 @@ class SetRenderer:
             def to_world(p_base):
                 return (T_world_base[:3, :3] @ np.asarray(p_base, float).T).T + T_world_base[:3, 3]
 
-            block = meshes.box_mesh([-14.0, -14.0, -95.0], [14.0, 14.0, -18.0])
+            block = meshes.box_mesh(*ACTUATION_UNIT_BOX_BASE_MM)
             block.apply_transform(T_world_base)
             self.pr_scene.add(_solid(block, (0.22, 0.23, 0.25), metallic=0.3, roughness=0.5))
             chuck = meshes.cylinder_mesh(to_world([0, 0, -18.0]), to_world([0, 0, -6.0]), 5.0)

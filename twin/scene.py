@@ -26,7 +26,7 @@ from .schema import NONNEGATIVE, POSITIVE, REQUIRED, SceneError, Table, read_tom
 
 
 __all__ = ["Scene", "SceneError", "load_scene", "check_scene_cameras", "read_toml", "scene_from_dict", "NoiseModel",
-           "SetDressing", "Light"]
+           "SetDressing", "Light", "ACTUATION_UNIT_BOX_BASE_MM"]
 
 
 # A camera at ~0 mm from its target has no line of sight (look_at would divide by ~0).
@@ -93,6 +93,11 @@ class Light:
     direction: tuple = (0.0, 0.0, -1.0)
     position_mm: tuple = (0.0, 0.0, 300.0)
     color: tuple = (1.0, 1.0, 1.0)
+
+
+#: The actuation unit's block in the robot's base frame (mm): the corners (lo, hi) of a box behind the base,
+#: against the insertion axis (base z). The renderer draws it; the scene generator keeps the backdrop beyond it.
+ACTUATION_UNIT_BOX_BASE_MM = ((-14.0, -14.0, -95.0), (14.0, 14.0, -18.0))
 
 
 @dataclass(frozen=True)

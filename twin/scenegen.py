@@ -18,10 +18,10 @@ import numpy as np
 
 from recon.params import dumps_toml
 
-from .backdrop import auto_texture_px
+from .backdrop import auto_texture_px, depth_beyond_target_mm
 from .groundtruth import extend_to_mesh_start
 from .kinematics import solve
-from .scene import Scene, scene_from_dict
+from .scene import ACTUATION_UNIT_BOX_BASE_MM, Scene, scene_from_dict
 from .textures import KINDS, PHOTOS
 
 __all__ = ["GeneratedScene", "SUITES", "generate_suite", "draw_wide", "camera_angle_deg", "view_problem",
@@ -302,6 +302,34 @@ def _fit_focal_lengths(rng, data: dict, name: str, tube_tables: list, aim_pts: n
     return f_px_by_cam
 
 
+def unit_corners_world_mm(scene: Scene) -> np.ndarray:
+    """The 8 corners (world mm) of the actuation unit's block (:data:`twin.scene.ACTUATION_UNIT_BOX_BASE_MM`)."""
+    lo, hi = ACTUATION_UNIT_BOX_BASE_MM
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    T = scene.robot.T_world_base
+    return corners @ T[:3, :3].T + T[:3, 3]
+
+
+def _behind_mm(scene: Scene, solid: np.ndarray, aimed_mm: np.ndarray, drawn_mm: float) -> float:
+    """How far beyond the target (mm) the per-camera backdrop planes stand: ``drawn_mm`` (5-120 mm, drawn) plus
+    10 mm beyond the robot (``solid``, world mm) along each camera's line of sight to the target it was aimed
+    at (``aimed_mm``), and at least 15 mm beyond it along the lines of sight the planes are placed on
+    (:func:`twin.backdrop.depth_beyond_target_mm`).
+
+    The planes are placed from where the optical axes pass closest, 30 mm or more from the aimed target with
+    the mounts a few degrees off; measured from the aimed target alone, a plane could cut through the robot
+    and hide it while its truth said it was there (wide-3-6: 20 mm of the robot behind the side camera's
+    plane in every frame; wide-5-0 frame 2: its last 6 mm). The draw is kept where it is clear, so that
+    scenes drawn before stay as they were.
+    """
+    behind = 0.0
+    for cam in scene.rig.cameras.values():
+        los = aimed_mm - cam.center_world_mm
+        los /= np.linalg.norm(los)
+        behind = max(behind, float(((solid - aimed_mm) @ los).max()))
+    return max(behind + 10.0 + drawn_mm, depth_beyond_target_mm(scene, solid) + 15.0)
+
+
 def _draw_backdrop(rng, scene: Scene, classes: dict, base: str, pts: np.ndarray, target: np.ndarray, width: int,
                    height: int, rgb: bool) -> tuple:
     """The ``[backdrop]`` table (planes behind the robot and unit, kind, colours, clutter, tube look) and the contrast class."""
@@ -309,13 +337,7 @@ def _draw_backdrop(rng, scene: Scene, classes: dict, base: str, pts: np.ndarray,
     unit = base == "in-view-unit" or (base == "outside" and rng.random() < 0.5)
     solid = pts
     if unit:
-        corners = np.array([[x, y, z] for x in (-95.0, -18.0) for y in (-14.0, 14.0) for z in (-14.0, 14.0)])
-        solid = np.concatenate([pts, corners])  # base frame = world frame here (base at 0, insertion +x)
-    behind = 0.0
-    for cam in scene.rig.cameras.values():
-        los = target - cam.center_world_mm
-        los /= np.linalg.norm(los)
-        behind = max(behind, float(((solid - target) @ los).max()))
+        solid = np.concatenate([pts, unit_corners_world_mm(scene)])
     contrast = "low" if rng.random() < 0.3 else "normal"
     kind = classes["backdrop"]
     c1, c2 = _colors(rng, contrast, rgb)
@@ -324,7 +346,7 @@ def _draw_backdrop(rng, scene: Scene, classes: dict, base: str, pts: np.ndarray,
         "color": c1,
         "color2": c2,
         "planes": "per-camera",
-        "behind_mm": _r(behind + 10.0 + rng.uniform(5.0, 120.0), 2),
+        "behind_mm": _r(_behind_mm(scene, solid, target, rng.uniform(5.0, 120.0)), 2),
         "texture_px": auto_texture_px(width, height),
         "pattern_scale": _r(rng.uniform(0.6, 2.0), 3),
         "clutter": int(rng.integers(0, 7)),
