@@ -115,15 +115,15 @@ def _target_mm(scene) -> np.ndarray:
     return np.linalg.lstsq(A, b, rcond=None)[0]
 
 
-def depth_beyond_target_mm(scene, points_world_mm: np.ndarray) -> float:
-    """How far (mm) the points reach beyond the rig's target along any camera's line of sight: a per-camera
+def depth_beyond_target_mm(scene, points_world_mm: np.ndarray, target_mm=None) -> float:
+    """How far (mm) the points reach beyond a target along any camera's line of sight to it: a per-camera
     backdrop ``behind_mm`` beyond the target must exceed it, or that plane cuts through them.
 
-    Measured from :func:`_target_mm`, where the planes are placed: with mounts a few degrees off, the optical
-    axes pass 30 mm or more from the target the rig was aimed at (wide-3-6: clear by 15 mm from the aimed
-    target, the robot lay 20 mm behind the side camera's plane, hidden in both views in every frame).
+    ``target_mm`` None: :func:`_target_mm`, where the planes are placed. With mounts a few degrees off, the
+    optical axes pass 30 mm or more from the target the rig was aimed at (wide-3-6: clear by 15 mm from the
+    aimed target, the robot lay 20 mm behind the side camera's plane, hidden in both views in every frame).
     """
-    target = _target_mm(scene)
+    target = _target_mm(scene) if target_mm is None else np.asarray(target_mm, float)
     depth = -np.inf
     for cam in scene.rig.cameras.values():
         los = target - cam.center_world_mm

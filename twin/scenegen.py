@@ -322,12 +322,8 @@ def _behind_mm(scene: Scene, solid: np.ndarray, aimed_mm: np.ndarray, drawn_mm: 
     plane in every frame; wide-5-0 frame 2: its last 6 mm). The draw is kept where it is clear, so that
     scenes drawn before stay as they were.
     """
-    behind = 0.0
-    for cam in scene.rig.cameras.values():
-        los = aimed_mm - cam.center_world_mm
-        los /= np.linalg.norm(los)
-        behind = max(behind, float(((solid - aimed_mm) @ los).max()))
-    return max(behind + 10.0 + drawn_mm, depth_beyond_target_mm(scene, solid) + 15.0)
+    drawn = max(0.0, depth_beyond_target_mm(scene, solid, aimed_mm)) + 10.0 + drawn_mm
+    return max(drawn, depth_beyond_target_mm(scene, solid) + 15.0)
 
 
 def _draw_backdrop(rng, scene: Scene, classes: dict, base: str, pts: np.ndarray, target: np.ndarray, width: int,
