@@ -41,7 +41,7 @@ from .distortion import undistort_normalized
 from .epipolar import EpipolarFrame, align_dp, conditioning, monotonic, triangulate_rays
 from .errors import FrameError
 from .geometry import arc_length, interp_rows, resample_polyline
-from .guided import best_path, ray_candidates, tube_contrast
+from .guided import best_path, ray_candidates, ray_points, strongest_candidates, tube_contrast
 from .methods import Method, register_method
 from .paper import camera_order
 from .rigcal import RigCalibration
@@ -713,6 +713,12 @@ def _unit_rays(model: FastModel, name: str, uv: np.ndarray) -> np.ndarray:
 # (max 190 -> 48 px, still suspect).
 _GUIDED_CANDIDATES = 240
 _GUIDED_MAX_RAYS = 120
+# The tube's crossing of a ray falls between evenly spaced candidates where the stretch is long (their spacing grows
+# with the reach: wide-2-21 frame 2, a 1.2 mm tube, candidates 2-11 mm apart on its last rays, the tube hit on about one
+# ray in four). So the candidates are first read densely, every half tube radius in the lost view (at most so many per
+# ray), and the search looks at the evenly spaced ones plus each ray's strongest local maxima.
+_GUIDED_PEAKS = 48
+_GUIDED_DENSE_MAX = 4096
 _GUIDED_STRETCH = 12.0
 _GUIDED_STRETCH_COST = 0.25
 _GUIDED_BIAS, _GUIDED_SUPPORT, _GUIDED_CAP = 1.5, 2.0, 4.0
@@ -733,6 +739,9 @@ def _lost_stretch(model: FastModel, params: FastParams, views: dict, frame, n: s
         return None
     pts, step, x0 = found
     uv, contrast = _guided_contrast(model, views[n], frame, n, pts)
+    pick = strongest_candidates(contrast, _GUIDED_CANDIDATES, _GUIDED_PEAKS)
+    pts, uv = (np.take_along_axis(a, pick[..., None], axis=1) for a in (pts, uv))
+    contrast = np.take_along_axis(contrast, pick, axis=1)
     path = best_path(np.minimum(contrast, _GUIDED_CAP) - _GUIDED_BIAS, pts, step, x0,
                      stretch_cost=_GUIDED_STRETCH_COST, max_stretch=_GUIDED_STRETCH)
     if path is None:
@@ -768,7 +777,35 @@ def _guided_candidates(model: FastModel, views: dict, n: str, other: str, step_p
     depth_mm = float(np.linalg.norm(x0 - c_l))
     step_mm = depth_mm * np.arccos(np.clip(np.einsum("ij,ij->i", dirs[1:], dirs[:-1]), -1.0, 1.0))
     reach_mm = _GUIDED_STRETCH * np.cumsum(step_mm) + 1.0
-    return ray_candidates(c_l, dirs[1:], x0, reach_mm, _GUIDED_CANDIDATES), step_mm, x0
+    coarse = ray_candidates(c_l, dirs[1:], x0, reach_mm, 4 * _GUIDED_CANDIDATES)
+    return _dense_in_view(model, n, c_l, dirs[1:], coarse), step_mm, x0
+
+
+def _dense_in_view(model: FastModel, n: str, center_mm: np.ndarray, dirs: np.ndarray, coarse: np.ndarray) -> np.ndarray:
+    """Candidates on the rays ``dirs`` (K, 3) from ``center_mm``, on one depth grid over the depths at which view
+    ``n`` sees any of the ``coarse`` ones (K, m, 3), spaced about half the inner tube's radius apart in view ``n``
+    (at most ``_GUIDED_DENSE_MAX`` per ray): (K, N, 3) world mm; ``coarse`` itself where view ``n`` sees none.
+
+    One grid for all rays: a candidate's neighbours on the next rays lie at its depth
+    (:func:`_guided_contrast` reads the tube's direction from them)."""
+    K, m = coarse.shape[:2]
+    uv, z = _project(model.rig[n], coarse.reshape(-1, 3))
+    H, W = model.views[n].shape
+    ins = (np.isfinite(uv).all(axis=1) & (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0)
+           & (uv[:, 1] <= H - 1)).reshape(K, m)
+    rows = np.flatnonzero(ins.any(axis=1))
+    if rows.size == 0:
+        return coarse
+    depth = np.einsum("kmd,kd->km", coarse - center_mm, dirs)
+    first, last = ins[rows].argmax(axis=1), m - 1 - ins[rows, ::-1].argmax(axis=1)
+    uv = uv.reshape(K, m, 2)
+    span_px = np.linalg.norm(uv[rows, last] - uv[rows, first], axis=1)
+    span_mm = depth[rows, last] - depth[rows, first]
+    lo, hi = float(depth[ins].min()), float(depth[ins].max())
+    px_per_mm = float(np.max(span_px / np.maximum(span_mm, 1e-9)))
+    spacing_px = 0.5 * max(model.views[n].inner_radius_px, 1.0)
+    count = int(np.clip(np.ceil(px_per_mm * (hi - lo) / spacing_px), _GUIDED_CANDIDATES, _GUIDED_DENSE_MAX))
+    return ray_points(center_mm, dirs, lo, hi, count)
 
 
 def _guided_contrast(model: FastModel, vc: ViewCenterline, frame, n: str, pts_mm: np.ndarray) -> tuple:

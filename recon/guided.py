@@ -19,7 +19,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["tube_contrast", "ray_candidates", "best_path"]
+__all__ = ["tube_contrast", "ray_candidates", "ray_points", "strongest_candidates", "best_path"]
 
 
 def tube_contrast(diff: np.ndarray, origin_px, uv: np.ndarray, normals: np.ndarray, radius_px: float) -> np.ndarray:
@@ -101,9 +101,38 @@ def ray_candidates(center_mm: np.ndarray, dirs: np.ndarray, start_mm: np.ndarray
     lam_c = (start_mm - center_mm) @ dirs.T  # depth of each ray's point closest to the start
     d_perp2 = np.sum((center_mm + lam_c[:, None] * dirs - start_mm) ** 2, axis=1)
     half = np.sqrt(np.maximum(reach_mm ** 2 - d_perp2, 0.0))
-    t = np.linspace(-1.0, 1.0, n)
-    lam = lam_c[:, None] + half[:, None] * t[None, :]
+    return ray_points(center_mm, dirs, lam_c - half, lam_c + half, n)
+
+
+def ray_points(center_mm: np.ndarray, dirs: np.ndarray, depth_lo_mm, depth_hi_mm, n: int) -> np.ndarray:
+    """``n`` points on each ray, evenly spaced in depth from ``depth_lo_mm`` to ``depth_hi_mm``: (K, n, 3) world mm.
+
+    ``depth_lo_mm`` and ``depth_hi_mm`` are scalars (one depth grid for every
+    ray) or (K,) arrays (mm along the unit rays ``dirs`` (K, 3) from ``center_mm``).
+    """
+    lo = np.broadcast_to(np.asarray(depth_lo_mm, float), (len(dirs),))
+    hi = np.broadcast_to(np.asarray(depth_hi_mm, float), (len(dirs),))
+    lam = lo[:, None] + (hi - lo)[:, None] * np.linspace(0.0, 1.0, n)[None, :]
     return center_mm + lam[..., None] * dirs[:, None, :]
+
+
+def strongest_candidates(contrast: np.ndarray, n_even: int, n_peaks: int) -> np.ndarray:
+    """Per ray, which of many candidates a path search looks at: (K, n_even + n_peaks) indices into ``contrast``.
+
+    ``n_even`` evenly spaced ones (where no view shows the tube, the path
+    crosses at the depth it interpolates) and the ``n_peaks`` highest local
+    maxima of ``contrast`` (K, N) along the ray (where the tube crosses it: a
+    tube a few px wide falls between evenly spaced candidates that are not
+    dense). A ray with fewer maxima repeats its highest; indices may repeat.
+    """
+    K, N = contrast.shape
+    even = np.broadcast_to(np.round(np.linspace(0, N - 1, n_even)).astype(np.int64), (K, n_even))
+    c = np.asarray(contrast, float)
+    peak = np.zeros_like(c, bool)
+    peak[:, 1:-1] = (c[:, 1:-1] >= c[:, :-2]) & (c[:, 1:-1] > c[:, 2:])
+    ranked = np.argsort(np.where(peak, -c, np.inf), axis=1, kind="stable")[:, :n_peaks]
+    ranked = np.where(np.take_along_axis(peak, ranked, axis=1), ranked, ranked[:, :1])
+    return np.concatenate([even, ranked], axis=1)
 
 
 def best_path(score: np.ndarray, points_mm: np.ndarray, step_mm: np.ndarray, start_mm: np.ndarray,

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from recon.guided import best_path, ray_candidates, tube_contrast
+from recon.guided import best_path, ray_candidates, ray_points, strongest_candidates, tube_contrast
 
 
 def _tube_image(polarity: float, radius_px: float = 2.0, noise: float = 1.0, seed: int = 0):
@@ -85,3 +85,25 @@ def test_ray_candidates_lie_on_the_rays_within_reach():
         off_ray = np.cross(pts[k] - center, dirs[k])
         assert np.allclose(off_ray, 0.0, atol=1e-9)
         assert np.all(np.linalg.norm(pts[k] - start, axis=1) <= reach[k] + 1e-6)
+
+
+def test_strongest_candidates_keep_a_narrow_crossing_between_the_evenly_spaced_ones():
+    """A tube crossing a ray reads high over a few dense candidates; the evenly spaced subset steps over it."""
+    rng = np.random.default_rng(3)
+    contrast = rng.uniform(0.0, 1.0, (4, 1000))
+    contrast[:, 503:506] = [6.0, 9.0, 6.0]   # the crossing: between the even candidates 501 and 505.x
+    contrast[3] = 0.0                        # a ray with no maximum at all
+    pick = strongest_candidates(contrast, 10, 5)
+    assert pick.shape == (4, 15)
+    even = np.round(np.linspace(0, 999, 10)).astype(int)
+    assert np.all(pick[:, :10] == even) and 504 not in even
+    assert np.all(pick[:3, 10] == 504)       # the strongest maximum first
+    assert np.all((pick >= 0) & (pick < 1000))
+
+
+def test_ray_points_share_one_depth_grid():
+    center = np.array([1.0, 2.0, -300.0])
+    dirs = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    pts = ray_points(center, dirs, 250.0, 350.0, 11)
+    depth = np.einsum("knd,kd->kn", pts - center, dirs)
+    np.testing.assert_allclose(depth, np.tile(np.linspace(250.0, 350.0, 11), (2, 1)))
