@@ -29,7 +29,7 @@ _undistort_step_nb = njit(cache=True, nogil=True, inline="always")(distortion.un
 
 __all__ = ["profile_edges_nb", "profiles_at_seeds_nb", "profile_values_nb", "coarse_foreground_nb", "coarse_foreground_tiles_nb",
            "bfs_path_nb", "rays_nb", "ridge_hits_nb", "near_any_nb", "spline_fit_nb", "spline_basis_nb", "spline_eval_nb", "spline_robust_nb", "frame_coefficients_nb",
-           "frame_shift_nb", "tip_along_axis_nb", "project_nb", "running_rank_nb"]
+           "frame_shift_nb", "tip_along_axis_nb", "project_nb", "running_rank_nb", "best_path_nb"]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -1322,3 +1322,59 @@ def running_rank_nb(x, size, rank):
         buf[k] = new
         out[i] = buf[rank]
     return out
+
+
+@njit(cache=True, nogil=True)
+def best_path_nb(score, points, step_mm, start, stretch_cost, max_stretch):
+    """:func:`recon.guided.best_path`'s dynamic programme, compiled: ``(found, path (K,) int64)``.
+
+    The same values, step bound and tie-breaking (the first of equal
+    predecessors) as the NumPy form kept in ``tests/fast_oracles.py``, which
+    built a (n, n, 3) array per ray: ~0.8 s for 120 rays of 288 candidates
+    against a few tens of ms here. ``found`` is False where no path keeps to
+    the step bound.
+    """
+    K, n = score.shape
+    value = np.empty(n)
+    for j in range(n):
+        d2 = 0.0
+        for c in range(3):
+            e = points[0, j, c] - start[c]
+            d2 += e * e
+        value[j] = score[0, j] if np.sqrt(d2) <= max_stretch * step_mm[0] + 1e-9 else -np.inf
+    back = np.zeros((K, n), np.int64)
+    new = np.empty(n)
+    limit = max_stretch - 1.0
+    for k in range(1, K):
+        sk = max(step_mm[k], 1e-6)
+        for i in range(n):
+            best = -np.inf
+            bi = 0
+            for j in range(n):
+                if value[j] == -np.inf:
+                    continue
+                d2 = 0.0
+                for c in range(3):
+                    e = points[k, i, c] - points[k - 1, j, c]
+                    d2 += e * e
+                excess = np.sqrt(d2) / sk - 1.0
+                if excess > limit:
+                    continue
+                t = value[j] - stretch_cost * max(excess, 0.0)
+                if t > best:
+                    best = t
+                    bi = j
+            back[k, i] = bi
+            new[i] = score[k, i] + best
+        value[:] = new
+    path = np.zeros(K, np.int64)
+    top = -np.inf
+    for j in range(n):
+        if value[j] > top:
+            top = value[j]
+            path[K - 1] = j
+    if not np.isfinite(top):
+        return False, path
+    for k in range(K - 1, 0, -1):
+        path[k - 1] = back[k, path[k]]
+    return True, path

@@ -1195,6 +1195,8 @@ def _warm_up(rec: FastReconstructor, background_frames: dict, length_mm: float =
     except (FrameError, ValueError, np.linalg.LinAlgError):
         pass
     rec.reset()
+    # The guided search's compiled path (second tries only: the synthetic pair never needs it).
+    best_path(np.zeros((2, 2)), np.zeros((2, 2, 3)), np.ones(2), np.zeros(3))
 
 
 def _prepare(rig, background_frames, params):

@@ -19,6 +19,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from ._kernels import best_path_nb
+
 __all__ = ["tube_contrast", "ray_candidates", "ray_points", "strongest_candidates", "best_path"]
 
 
@@ -159,21 +161,7 @@ def best_path(score: np.ndarray, points_mm: np.ndarray, step_mm: np.ndarray, sta
     (K,) int array or None
         None where no path keeps to the step bound.
     """
-    K, n = score.shape
-    d0 = np.linalg.norm(points_mm[0] - start_mm, axis=1)
-    value = np.where(d0 <= max_stretch * step_mm[0] + 1e-9, score[0], -np.inf)
-    back = np.zeros((K, n), np.int32)
-    for k in range(1, K):
-        step = np.linalg.norm(points_mm[k][:, None, :] - points_mm[k - 1][None, :, :], axis=2)  # (n now, n before)
-        excess = step / max(step_mm[k], 1e-6) - 1.0
-        total = value[None, :] - stretch_cost * np.maximum(excess, 0.0)
-        total[excess > max_stretch - 1.0] = -np.inf
-        back[k] = np.argmax(total, axis=1)
-        value = score[k] + total[np.arange(n), back[k]]
-    if not np.isfinite(value.max()):
-        return None
-    path = np.empty(K, np.int64)
-    path[-1] = int(np.argmax(value))
-    for k in range(K - 1, 0, -1):
-        path[k - 1] = back[k, path[k]]
-    return path
+    found, path = best_path_nb(np.ascontiguousarray(score, np.float64), np.ascontiguousarray(points_mm, np.float64),
+                               np.ascontiguousarray(step_mm, np.float64), np.asarray(start_mm, np.float64),
+                               float(stretch_cost), float(max_stretch))
+    return path if found else None

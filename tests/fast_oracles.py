@@ -20,7 +20,7 @@ from recon.metrics import backbone_errors
 __all__ = [
     "frame_shift", "frame_coefficients", "coarse_foreground", "geodesic_path", "bfs_path", "gather_profiles",
     "profile_edges", "edges_from_profiles", "design", "fit_curve", "Fitter", "bilinear_diff", "tip_along_axis",
-    "near", "energy_hits", "project", "use_numpy_path", "compiled_and_oracle", "assert_agree",
+    "near", "energy_hits", "project", "best_path", "use_numpy_path", "compiled_and_oracle", "assert_agree",
 ]
 
 
@@ -417,6 +417,31 @@ def use_numpy_path(monkeypatch) -> None:
     monkeypatch.setattr(fast, "fit_curve", fit_curve)
     monkeypatch.setattr(fast, "_rays", fast._rays_in_python)
     monkeypatch.setattr(fast, "_project", project)
+    monkeypatch.setattr(fast, "best_path", best_path)
+
+
+# ----------------------------------------------------------------------------- guided search
+def best_path(score: np.ndarray, points_mm: np.ndarray, step_mm: np.ndarray, start_mm: np.ndarray,
+              stretch_cost: float = 1.0, max_stretch: float = 4.0):
+    """:func:`recon.guided.best_path` (``recon._kernels.best_path_nb``): the path's candidate index per ray, or None."""
+    K, n = score.shape
+    d0 = np.linalg.norm(points_mm[0] - start_mm, axis=1)
+    value = np.where(d0 <= max_stretch * step_mm[0] + 1e-9, score[0], -np.inf)
+    back = np.zeros((K, n), np.int32)
+    for k in range(1, K):
+        step = np.linalg.norm(points_mm[k][:, None, :] - points_mm[k - 1][None, :, :], axis=2)  # (n now, n before)
+        excess = step / max(step_mm[k], 1e-6) - 1.0
+        total = value[None, :] - stretch_cost * np.maximum(excess, 0.0)
+        total[excess > max_stretch - 1.0] = -np.inf
+        back[k] = np.argmax(total, axis=1)
+        value = score[k] + total[np.arange(n), back[k]]
+    if not np.isfinite(value.max()):
+        return None
+    path = np.empty(K, np.int64)
+    path[-1] = int(np.argmax(value))
+    for k in range(K - 1, 0, -1):
+        path[k - 1] = back[k, path[k]]
+    return path
 
 
 # ----------------------------------------------------------------------------- whole reconstructions

@@ -1,6 +1,7 @@
 """The guided search of a lost stretch (recon.guided): contrast of either polarity, one path under a step bound."""
 import numpy as np
 import pytest
+from fast_oracles import best_path as best_path_oracle
 from hypothesis import given, settings, strategies as st
 
 from recon.guided import best_path, ray_candidates, ray_points, strongest_candidates, tube_contrast
@@ -107,3 +108,20 @@ def test_ray_points_share_one_depth_grid():
     pts = ray_points(center, dirs, 250.0, 350.0, 11)
     depth = np.einsum("knd,kd->kn", pts - center, dirs)
     np.testing.assert_allclose(depth, np.tile(np.linspace(250.0, 350.0, 11), (2, 1)))
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10_000), st.integers(2, 30), st.integers(1, 40))
+def test_compiled_best_path_equals_its_numpy_oracle(seed, K, n):
+    """Scores with ties (rounded), candidates some of which no step reaches, a start near the first ray."""
+    rng = np.random.default_rng(seed)
+    pts = np.cumsum(rng.normal(0.0, 1.0, (K, 1, 3)), axis=0) + rng.normal(0.0, 2.0, (K, n, 3))
+    score = np.round(rng.normal(0.0, 1.0, (K, n)), 1)
+    step = rng.uniform(0.3, 1.5, K)
+    start = pts[0, 0] + rng.normal(0.0, 1.0, 3)
+    for cost, stretch in ((0.25, 12.0), (1.0, 2.0)):
+        got = best_path(score, pts, step, start, stretch_cost=cost, max_stretch=stretch)
+        want = best_path_oracle(score, pts, step, start, stretch_cost=cost, max_stretch=stretch)
+        assert (got is None) == (want is None)
+        if want is not None:
+            np.testing.assert_array_equal(got, want)
