@@ -1326,13 +1326,32 @@ def running_rank_nb(x, size, rank):
 
 @njit(cache=True, nogil=True)
 def best_path_nb(score, points, step_mm, start, stretch_cost, max_stretch):
-    """:func:`recon.guided.best_path`'s dynamic programme, compiled: ``(found, path (K,) int64)``.
+    """:func:`recon.guided.best_path`'s dynamic programme, compiled.
 
     The same values, step bound and tie-breaking (the first of equal
     predecessors) as the NumPy form kept in ``tests/fast_oracles.py``, which
     built a (n, n, 3) array per ray: ~0.8 s for 120 rays of 288 candidates
-    against a few tens of ms here. ``found`` is False where no path keeps to
-    the step bound.
+    against a few tens of ms here.
+
+    Parameters
+    ----------
+    score : (K, n) float64 array
+        Each candidate's score.
+    points : (K, n, 3) float64 array
+        The candidates (world, mm).
+    step_mm : (K,) float64 array
+        The least length of each step (mm).
+    start : (3,) float64 array
+        Where the path starts (world, mm).
+    stretch_cost, max_stretch : float
+        As in :func:`recon.guided.best_path`.
+
+    Returns
+    -------
+    found : bool
+        False where no path keeps to the step bound.
+    path : (K,) int64 array
+        The chosen candidate's index on each ray (zeros where not found).
     """
     K, n = score.shape
     value = np.empty(n)

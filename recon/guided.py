@@ -107,10 +107,24 @@ def ray_candidates(center_mm: np.ndarray, dirs: np.ndarray, start_mm: np.ndarray
 
 
 def ray_points(center_mm: np.ndarray, dirs: np.ndarray, depth_lo_mm, depth_hi_mm, n: int) -> np.ndarray:
-    """``n`` points on each ray, evenly spaced in depth from ``depth_lo_mm`` to ``depth_hi_mm``: (K, n, 3) world mm.
+    """``n`` points on each ray, evenly spaced in depth from ``depth_lo_mm`` to ``depth_hi_mm``.
 
-    ``depth_lo_mm`` and ``depth_hi_mm`` are scalars (one depth grid for every
-    ray) or (K,) arrays (mm along the unit rays ``dirs`` (K, 3) from ``center_mm``).
+    Parameters
+    ----------
+    center_mm : (3,)
+        The rays' origin (the camera centre, world mm).
+    dirs : (K, 3)
+        Unit ray directions (world).
+    depth_lo_mm, depth_hi_mm : float or (K,)
+        The nearest and farthest depth (mm along each ray): scalars give one
+        depth grid for every ray.
+    n : int
+        Points per ray.
+
+    Returns
+    -------
+    (K, n, 3) float array
+        The points (world, mm), ray by ray, nearest the camera first.
     """
     lo = np.broadcast_to(np.asarray(depth_lo_mm, float), (len(dirs),))
     hi = np.broadcast_to(np.asarray(depth_hi_mm, float), (len(dirs),))
@@ -119,13 +133,29 @@ def ray_points(center_mm: np.ndarray, dirs: np.ndarray, depth_lo_mm, depth_hi_mm
 
 
 def strongest_candidates(contrast: np.ndarray, n_even: int, n_peaks: int) -> np.ndarray:
-    """Per ray, which of many candidates a path search looks at: (K, n_even + n_peaks) indices into ``contrast``.
+    """Per ray, which of many candidates a path search looks at.
 
     ``n_even`` evenly spaced ones (where no view shows the tube, the path
     crosses at the depth it interpolates) and the ``n_peaks`` highest local
-    maxima of ``contrast`` (K, N) along the ray (where the tube crosses it: a
-    tube a few px wide falls between evenly spaced candidates that are not
-    dense). A ray with fewer maxima repeats its highest; indices may repeat.
+    maxima of the contrast along the ray (where the tube crosses it: a tube a
+    few px wide falls between evenly spaced candidates that are not dense).
+
+    Parameters
+    ----------
+    contrast : (K, N)
+        Each candidate's tube contrast (:func:`tube_contrast`), candidates in
+        depth order along each of the K rays.
+    n_even : int
+        Evenly spaced candidates kept per ray (the first and last included).
+    n_peaks : int
+        Local maxima kept per ray, highest first.
+
+    Returns
+    -------
+    (K, n_even + n_peaks) int array
+        Indices into each ray's N candidates: the even ones, then the maxima.
+        A ray with fewer maxima repeats its highest (or index 0 where it has
+        none); indices may repeat.
     """
     K, N = contrast.shape
     even = np.broadcast_to(np.round(np.linspace(0, N - 1, n_even)).astype(np.int64), (K, n_even))
