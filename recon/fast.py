@@ -781,6 +781,12 @@ def _guided_candidates(model: FastModel, views: dict, n: str, other: str, step_p
     return _dense_in_view(model, n, c_l, dirs[1:], coarse), step_mm, x0
 
 
+def _in_image(model: FastModel, n: str, uv: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(m,) bool: projections ``uv`` (m, 2) px at depths ``z`` (m,) mm in front of camera ``n`` and inside its image."""
+    H, W = model.views[n].shape
+    return np.isfinite(uv).all(axis=1) & (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)
+
+
 def _dense_in_view(model: FastModel, n: str, center_mm: np.ndarray, dirs: np.ndarray, coarse: np.ndarray) -> np.ndarray:
     """Candidates on the rays ``dirs`` (K, 3) from ``center_mm``, on one depth grid over the depths at which view
     ``n`` sees any of the ``coarse`` ones (K, m, 3), spaced about half the inner tube's radius apart in view ``n``
@@ -790,9 +796,7 @@ def _dense_in_view(model: FastModel, n: str, center_mm: np.ndarray, dirs: np.nda
     (:func:`_guided_contrast` reads the tube's direction from them)."""
     K, m = coarse.shape[:2]
     uv, z = _project(model.rig[n], coarse.reshape(-1, 3))
-    H, W = model.views[n].shape
-    ins = (np.isfinite(uv).all(axis=1) & (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0)
-           & (uv[:, 1] <= H - 1)).reshape(K, m)
+    ins = _in_image(model, n, uv, z).reshape(K, m)
     rows = np.flatnonzero(ins.any(axis=1))
     if rows.size == 0:
         return coarse
@@ -815,7 +819,7 @@ def _guided_contrast(model: FastModel, vc: ViewCenterline, frame, n: str, pts_mm
     uv = uv + vc.shift_px
     H, W = model.views[n].shape
     r_px = max(model.views[n].inner_radius_px, 1.0)
-    ins = np.isfinite(uv).all(axis=1) & (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= W - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= H - 1)
+    ins = _in_image(model, n, uv, z)
     contrast = np.zeros(len(uv), np.float32)
     grid = uv.reshape(*pts_mm.shape[:2], 2)
     if ins.any():
