@@ -84,10 +84,8 @@ def ray_candidates(center_mm: np.ndarray, dirs: np.ndarray, start_mm: np.ndarray
 
     Parameters
     ----------
-    center_mm : (3,)
-        The rays' origin (the camera centre, world mm).
-    dirs : (K, 3)
-        Unit ray directions (world).
+    center_mm, dirs : (3,), (K, 3)
+        The rays' origin and unit directions, as in :func:`ray_points`.
     start_mm : (3,)
         Where the path starts (the last point both views see).
     reach_mm : (K,)
