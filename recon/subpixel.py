@@ -1719,6 +1719,10 @@ def _rim_lit_candidates(s, c, narrow, f, d, width, max_gap):
     return narrow[keep], before[keep], after[keep], near[keep], normal[keep]
 
 
+#: A tail cross-section wider than this many times the tube before it can be the end cap cut at a slant.
+_WIDE_TAIL = 1.2
+
+
 def _off_axis_tail(fitter, s, c, ok, width, params) -> np.ndarray:
     """``ok`` without the centres of the last tube diameter that read wide and lie off the line the centres
     before them run along.
@@ -1760,10 +1764,6 @@ def _off_axis_tail(fitter, s, c, ok, width, params) -> np.ndarray:
     ok = ok.copy()
     ok[tail[bad]] = False
     return ok
-
-
-#: A tail cross-section wider than this many times the tube before it can be the end cap cut at a slant.
-_WIDE_TAIL = 1.2
 
 
 def _final_curve(name: str, fitter, s, c, ok, end_px, params) -> tuple:
