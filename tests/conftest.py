@@ -1,6 +1,7 @@
 """Shared fixtures: the paper scene, and one twin renderer per test session (OpenGL contexts are costly)."""
 from __future__ import annotations
 
+import json
 import os
 
 import pytest
@@ -44,8 +45,26 @@ settings.register_profile("long", deadline=None, max_examples=500, suppress_heal
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
+def pytest_sessionfinish(session):
+    """On a pytest-xdist worker: hand the figures its tests measured to the controller, which prints them."""
+    workeroutput = getattr(session.config, "workeroutput", None)
+    if workeroutput is not None:
+        from figures import FIGURES
+
+        workeroutput["figures"] = json.dumps(FIGURES)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    """On the pytest-xdist controller: merge a finished worker's figures (tests/figures.py) into its own."""
+    from figures import FIGURES
+
+    for section, figs in json.loads(getattr(node, "workeroutput", {}).get("figures", "{}")).items():
+        FIGURES.setdefault(section, {}).update(figs)
+
+
 def pytest_terminal_summary(terminalreporter):
-    """Print the figures the tests measured (tests/figures.py), a section each."""
+    """Print the figures the tests measured (tests/figures.py), a section each, whichever process measured them."""
     from figures import FIGURES
 
     for section, figs in FIGURES.items():
