@@ -861,10 +861,52 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
         # wide-2-16 frame 1 followed it 300 px away from the tube).
         ahead = (model.axis_px, max(3.0, 2.0 * model.outer_radius_px / f + 2.0))
     path, g, region, x0p, y0p = _traced_path(mask, (sx, sy, sw, sh), (rx0, ry0), (hc, wc), (bx + rx0, by + ry0), ahead)
+    path_c = (path[:, ::-1].astype(np.float64) + 0.5) * g + [x0p, y0p] - 0.5  # coarse px (x, y)
+    if ahead is not None and float(np.max((path_c - [bx + rx0, by + ry0]) @ model.axis_px)) < _MIN_REACH_AHEAD:
+        # A path that stays at the base followed what lies there (the tube's stub behind the base, a clamp),
+        # not the robot, whose outer tube showed ahead only in pieces under the coarse threshold (wide-4-43
+        # frame 1: a 3 px tube on a photo of coins; the path ran 19 px backwards and the frame was refused).
+        if roi is not None:
+            return coarse_path(model, frame, None, border_margin_px, base_search_px, min_region)
+        joined = _joined_ahead(model, frame, coeff, (bx, by), bwin, min_region)
+        if joined is not None:
+            mask, area, (sx, sy, sw, sh) = joined
+            path, g, region, x0p, y0p = _traced_path(mask, (sx, sy, sw, sh), (0, 0), (hc, wc), (bx, by), ahead)
+            path_c = (path[:, ::-1].astype(np.float64) + 0.5) * g + [x0p, y0p] - 0.5
     _check_end_in_view(model, path, g, region, (x0p, y0p), border_margin_px)
-    path_px = ((path[:, ::-1].astype(np.float64) + 0.5) * g + [x0p, y0p]) * f - 0.5
+    path_px = (path_c + 0.5) * f - 0.5
     bbox = (sx * f, sy * f, (sx + sw) * f, (sy + sh) * f)
     return CoarseResult(coeff, path_px, bbox, area, (sx, sy, sx + sw, sy + sh))
+
+
+#: How far (coarse px) ahead of the base along the insertion axis the traced path must reach for
+#: :func:`coarse_path` to take it as it is (else it joins the pieces ahead, :func:`_joined_ahead`).
+_MIN_REACH_AHEAD = 6.0
+#: The most coarse pixels a joined region may cover per coarse px of its bounding box's diagonal, in outer tube
+#: widths plus a coarse px: the joined tubes of wide-4-43 and wide-4-36 frame 1 cover 0.66 and 0.64, the sheet
+#: of fabric texture of wide-2-22 frame 2 1.85 (a tube 1.5 times as long as its box's diagonal, about 1).
+_MAX_FILL = 1.25
+
+
+def _joined_ahead(model: ViewModel, frame: np.ndarray, coeff: np.ndarray, base: tuple, bwin: tuple, min_region: int):
+    """The robot's region with the pieces ahead of the base joined to it (:func:`_join_along_axis`), over the
+    whole image: ``(mask, area, rect)`` (coarse px, ``rect`` = (x, y, w, h)), or None where nothing was joined
+    or the joined region is not as thin as a tube (``_MAX_FILL``).
+
+    The whole image: the pieces ahead may lie in tiles the region at the base did not lead to. Pieces of a
+    backdrop whose texture crosses the coarse threshold everywhere join a sheet of it (wide-2-22 frame 2,
+    fabric: a path across the whole side view, 260 footprints off, where the frame had been refused).
+    """
+    f = model.factor
+    hc, wc = model.coarse_shape
+    mask = _coarse_foreground(model, frame, coeff, (0, 0, wc, hc))[0]
+    if not _join_along_axis(model, mask, base):
+        return None
+    area, rect, _ = _robot_region(model, mask, base, bwin, (0, 0, wc, hc), min_region, True)
+    width = max(1.5, 2.0 * model.outer_radius_px / f + 1.0)
+    if rect is None or area < min_region or area > _MAX_FILL * np.hypot(rect[2], rect[3]) * width:
+        return None
+    return mask, area, tuple(int(v) for v in rect)
 
 
 def _join_along_axis(model: ViewModel, mask: np.ndarray, base: tuple, gap_px: float = 48.0) -> bool:

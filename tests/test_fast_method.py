@@ -15,6 +15,7 @@ from drawn_tubes import draw_tube, robot_backbone
 
 from recon import _kernels
 from recon import fast as fast_module
+from recon import subpixel as subpixel_module
 from recon.camera import Camera
 from recon.epipolar import EpipolarFrame, align_dp, monotonic, triangulate_rays
 from recon.errors import FrameError
@@ -605,6 +606,58 @@ def test_first_stretch_lost_in_the_backdrop_is_joined_to_the_base(synthetic):
     assert np.linalg.norm(coarse.path_px[0] - [u0, v0]) < 12.0, coarse.path_px[0]
     assert np.linalg.norm(coarse.path_px[-1] - tip_uv) < 24.0, (coarse.path_px[-1], tip_uv)
 
+
+
+def test_a_stub_at_the_base_does_not_stand_for_the_robot_in_pieces_ahead_of_it(synthetic):
+    """A clamp at the base (a thick stub from 6 mm behind it to just in front) stands out in full, and the
+    robot's first 130 px show only in pieces: the region at the base stops there, so the pieces ahead of it
+    along the insertion axis are joined to it and the coarse path still runs to the tip (it ran 50 px
+    backwards along the stub before)."""
+    rig, backgrounds, rng = synthetic
+    s, pts, radii = robot_backbone()
+    frames = _frames(rig, rng, pts, radii)
+    view = prepare_fast(rig, backgrounds).views["side"]
+    frame = frames["side"].astype(np.float32)
+    plain = _backdrop(rng, 1.01)
+    (u0, v0), = rig["side"].project(np.zeros((1, 3)))[0]
+    cols = np.arange(1024)
+    lost = (cols < u0 + 40) | ((cols < u0 + 130) & ((cols - int(u0)) % 30 < 12))
+    frame[:, lost] = plain[:, lost]
+    stub = np.column_stack([np.linspace(-6.0, 0.3, 40), np.zeros(40), np.zeros(40)])
+    frame = np.clip(draw_tube(frame, rig["side"], stub, np.full(40, 1.2)), 0, 255).astype(np.uint8)
+    coarse = coarse_path(view, frame)
+    tip_uv = rig["side"].project(pts[-1:])[0][0]
+    assert np.linalg.norm(coarse.path_px[0] - [u0, v0]) < 12.0, coarse.path_px[0]
+    assert np.linalg.norm(coarse.path_px[-1] - tip_uv) < 24.0, (coarse.path_px[-1], tip_uv)
+
+
+@pytest.mark.parametrize("max_fill", [None, 1e9])
+def test_pieces_that_join_a_sheet_of_texture_are_not_the_robot(synthetic, monkeypatch, max_fill):
+    """As above, but ahead of the base lies a band of coarse texture (+-45 gray levels) that crosses the
+    coarse threshold everywhere: the pieces in the corridor join a sheet of it, far wider than a tube, so the
+    join is not kept and the path does not run along the band (without the thinness limit it runs to the
+    band's far end)."""
+    rig, backgrounds, rng = synthetic
+    s, pts, radii = robot_backbone()
+    frame = _frames(rig, rng, pts, radii)["side"].astype(np.float32)
+    view = prepare_fast(rig, backgrounds).views["side"]
+    (u0, v0), = rig["side"].project(np.zeros((1, 3)))[0]
+    cols = np.arange(1024)
+    lost = (cols < u0 + 40) | ((cols < u0 + 130) & ((cols - int(u0)) % 30 < 12))
+    frame[:, lost] = _backdrop(rng, 1.01)[:, lost]
+    stub = np.column_stack([np.linspace(-6.0, 0.3, 40), np.zeros(40), np.zeros(40)])
+    frame = draw_tube(frame, rig["side"], stub, np.full(40, 1.2))
+    band = (slice(int(v0) - 40, int(v0) + 40), slice(int(u0) + 40, int(u0) + 440))
+    texture = rng.choice([-45.0, 45.0], size=(20, 102)).repeat(4, axis=0).repeat(4, axis=1)
+    frame[band] += texture[: band[0].stop - band[0].start, : band[1].stop - band[1].start]
+    frame = np.clip(frame, 0, 255).astype(np.uint8)
+    if max_fill is not None:
+        monkeypatch.setattr(subpixel_module, "_MAX_FILL", max_fill)
+    try:
+        reach = float((coarse_path(view, frame).path_px[-1] - [u0, v0]) @ view.axis_px)
+    except FrameError:
+        reach = 0.0
+    assert (reach < 100.0) == (max_fill is None), reach
 
 def _rim_lit_frame(rng, cam, pts, radius_mm, rim_only):
     """A tube of ``radius_mm`` along ``pts`` whose body differs from the backdrop by 60 gray levels, except
