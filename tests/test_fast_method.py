@@ -585,79 +585,57 @@ def test_warm_up_in_prepare_leaves_no_trace(paper_scene, paper_frames):
         assert a.jump_flag == b.jump_flag
 
 
-def test_first_stretch_lost_in_the_backdrop_is_joined_to_the_base(synthetic):
-    """The robot's first 40 px stand at the backdrop's gray level and the next 90 px show only in pieces
-    (a thin tube on a mottled backdrop): nothing of it lies within the base's search window, but the pieces
-    lie ahead of the base along the insertion axis, so the coarse path still starts at the base and runs
-    to the tip."""
+def _in_pieces(synthetic, stub: bool):
+    """The side view of :func:`robot_backbone` whose first 40 px stand at the backdrop's gray level and next
+    90 px show only in pieces (a thin tube on a mottled backdrop), with a clamp at the base where ``stub`` (a
+    thick tube from 6 mm behind it to just in front, in full contrast): ``(rig, view, pts, frame, (u0, v0))``,
+    the frame float32, the base in px."""
     rig, backgrounds, rng = synthetic
     s, pts, radii = robot_backbone()
-    frames = _frames(rig, rng, pts, radii)
+    frame = _frames(rig, rng, pts, radii)["side"].astype(np.float32)
     view = prepare_fast(rig, backgrounds).views["side"]
-    frame = frames["side"].astype(np.float32)
     plain = _backdrop(rng, 1.01)
     (u0, v0), = rig["side"].project(np.zeros((1, 3)))[0]
     cols = np.arange(1024)
     lost = (cols < u0 + 40) | ((cols < u0 + 130) & ((cols - int(u0)) % 30 < 12))
     frame[:, lost] = plain[:, lost]
-    frame = np.clip(frame, 0, 255).astype(np.uint8)
-    coarse = coarse_path(view, frame)
+    if stub:
+        clamp = np.column_stack([np.linspace(-6.0, 0.3, 40), np.zeros(40), np.zeros(40)])
+        frame = draw_tube(frame, rig["side"], clamp, np.full(40, 1.2))
+    return rig, view, pts, frame, (u0, v0)
+
+
+@pytest.mark.parametrize("stub", [False, True])
+def test_a_robot_in_pieces_ahead_of_its_base_is_joined_to_it(synthetic, stub):
+    """Nothing of the robot lies within the base's search window, or (``stub``) only a clamp does, whose region
+    stops at the base (the path ran 50 px backwards along it before): the pieces lie ahead of the base along
+    the insertion axis, so the coarse path still starts at the base and runs to the tip."""
+    rig, view, pts, frame, base = _in_pieces(synthetic, stub)
+    coarse = coarse_path(view, np.clip(frame, 0, 255).astype(np.uint8))
     tip_uv = rig["side"].project(pts[-1:])[0][0]
-    assert np.linalg.norm(coarse.path_px[0] - [u0, v0]) < 12.0, coarse.path_px[0]
-    assert np.linalg.norm(coarse.path_px[-1] - tip_uv) < 24.0, (coarse.path_px[-1], tip_uv)
-
-
-
-def test_a_stub_at_the_base_does_not_stand_for_the_robot_in_pieces_ahead_of_it(synthetic):
-    """A clamp at the base (a thick stub from 6 mm behind it to just in front) stands out in full, and the
-    robot's first 130 px show only in pieces: the region at the base stops there, so the pieces ahead of it
-    along the insertion axis are joined to it and the coarse path still runs to the tip (it ran 50 px
-    backwards along the stub before)."""
-    rig, backgrounds, rng = synthetic
-    s, pts, radii = robot_backbone()
-    frames = _frames(rig, rng, pts, radii)
-    view = prepare_fast(rig, backgrounds).views["side"]
-    frame = frames["side"].astype(np.float32)
-    plain = _backdrop(rng, 1.01)
-    (u0, v0), = rig["side"].project(np.zeros((1, 3)))[0]
-    cols = np.arange(1024)
-    lost = (cols < u0 + 40) | ((cols < u0 + 130) & ((cols - int(u0)) % 30 < 12))
-    frame[:, lost] = plain[:, lost]
-    stub = np.column_stack([np.linspace(-6.0, 0.3, 40), np.zeros(40), np.zeros(40)])
-    frame = np.clip(draw_tube(frame, rig["side"], stub, np.full(40, 1.2)), 0, 255).astype(np.uint8)
-    coarse = coarse_path(view, frame)
-    tip_uv = rig["side"].project(pts[-1:])[0][0]
-    assert np.linalg.norm(coarse.path_px[0] - [u0, v0]) < 12.0, coarse.path_px[0]
+    assert np.linalg.norm(coarse.path_px[0] - base) < 12.0, coarse.path_px[0]
     assert np.linalg.norm(coarse.path_px[-1] - tip_uv) < 24.0, (coarse.path_px[-1], tip_uv)
 
 
 @pytest.mark.parametrize("max_fill", [None, 1e9])
 def test_pieces_that_join_a_sheet_of_texture_are_not_the_robot(synthetic, monkeypatch, max_fill):
-    """As above, but ahead of the base lies a band of coarse texture (+-45 gray levels) that crosses the
-    coarse threshold everywhere: the pieces in the corridor join a sheet of it, far wider than a tube, so the
-    join is not kept and the path does not run along the band (without the thinness limit it runs to the
-    band's far end)."""
-    rig, backgrounds, rng = synthetic
-    s, pts, radii = robot_backbone()
-    frame = _frames(rig, rng, pts, radii)["side"].astype(np.float32)
-    view = prepare_fast(rig, backgrounds).views["side"]
-    (u0, v0), = rig["side"].project(np.zeros((1, 3)))[0]
-    cols = np.arange(1024)
-    lost = (cols < u0 + 40) | ((cols < u0 + 130) & ((cols - int(u0)) % 30 < 12))
-    frame[:, lost] = _backdrop(rng, 1.01)[:, lost]
-    stub = np.column_stack([np.linspace(-6.0, 0.3, 40), np.zeros(40), np.zeros(40)])
-    frame = draw_tube(frame, rig["side"], stub, np.full(40, 1.2))
+    """As above with the clamp, but ahead of the base lies a band of coarse texture (+-45 gray levels) that
+    crosses the coarse threshold everywhere: the pieces in the corridor join a sheet of it, far wider than a
+    tube, so the join is not kept and the path does not run along the band (without the thinness limit it
+    runs to the band's far end)."""
+    rig, view, pts, frame, (u0, v0) = _in_pieces(synthetic, stub=True)
+    rng = np.random.default_rng(8)
     band = (slice(int(v0) - 40, int(v0) + 40), slice(int(u0) + 40, int(u0) + 440))
     texture = rng.choice([-45.0, 45.0], size=(20, 102)).repeat(4, axis=0).repeat(4, axis=1)
     frame[band] += texture[: band[0].stop - band[0].start, : band[1].stop - band[1].start]
-    frame = np.clip(frame, 0, 255).astype(np.uint8)
     if max_fill is not None:
         monkeypatch.setattr(subpixel_module, "_MAX_FILL", max_fill)
     try:
-        reach = float((coarse_path(view, frame).path_px[-1] - [u0, v0]) @ view.axis_px)
+        reach = float((coarse_path(view, np.clip(frame, 0, 255).astype(np.uint8)).path_px[-1] - [u0, v0]) @ view.axis_px)
     except FrameError:
         reach = 0.0
     assert (reach < 100.0) == (max_fill is None), reach
+
 
 def _rim_lit_frame(rng, cam, pts, radius_mm, rim_only):
     """A tube of ``radius_mm`` along ``pts`` whose body differs from the backdrop by 60 gray levels, except
