@@ -861,7 +861,7 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
         # wide-2-16 frame 1 followed it 300 px away from the tube).
         ahead = (model.axis_px, max(3.0, 2.0 * model.outer_radius_px / f + 2.0))
     path, g, region, x0p, y0p = _traced_path(mask, (sx, sy, sw, sh), (rx0, ry0), (hc, wc), (bx + rx0, by + ry0), ahead)
-    path_c = (path[:, ::-1].astype(np.float64) + 0.5) * g + [x0p, y0p] - 0.5  # coarse px (x, y)
+    path_c = _path_coarse_xy(path, g, x0p, y0p)
     if ahead is not None and float(np.max((path_c - [bx + rx0, by + ry0]) @ model.axis_px)) < _MIN_REACH_AHEAD:
         # A path that stays at the base followed what lies there (the tube's stub behind the base, a clamp),
         # not the robot, whose outer tube showed ahead only in pieces under the coarse threshold (wide-4-43
@@ -872,11 +872,17 @@ def coarse_path(model: ViewModel, frame: np.ndarray, roi=None, border_margin_px:
         if joined is not None:
             mask, area, (sx, sy, sw, sh) = joined
             path, g, region, x0p, y0p = _traced_path(mask, (sx, sy, sw, sh), (0, 0), (hc, wc), (bx, by), ahead)
-            path_c = (path[:, ::-1].astype(np.float64) + 0.5) * g + [x0p, y0p] - 0.5
+            path_c = _path_coarse_xy(path, g, x0p, y0p)
     _check_end_in_view(model, path, g, region, (x0p, y0p), border_margin_px)
     path_px = (path_c + 0.5) * f - 0.5
     bbox = (sx * f, sy * f, (sx + sw) * f, (sy + sh) * f)
     return CoarseResult(coeff, path_px, bbox, area, (sx, sy, sx + sw, sy + sh))
+
+
+def _path_coarse_xy(path: np.ndarray, g: int, x0p: int, y0p: int) -> np.ndarray:
+    """A traced path's (y, x) cells of the grid pooled ``g`` x ``g`` from ``(x0p, y0p)`` (:func:`_traced_path`) as
+    (n, 2) (x, y) coarse px, each cell's centre."""
+    return (path[:, ::-1].astype(np.float64) + 0.5) * g + [x0p, y0p] - 0.5
 
 
 #: How far (coarse px) ahead of the base along the insertion axis the traced path must reach for
