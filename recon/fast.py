@@ -269,6 +269,14 @@ class FastReconstruction:
     suspect_reason : str or None
         Why the method itself cannot vouch for this shape (the frame is
         reported ``suspect``), e.g. a tube folding across an epipolar plane.
+    alternative : FastReconstruction or None
+        The same frame with the tip at the farther view's silhouette end,
+        where the views' ends disagree by more than ``tip_triangulate_px``
+        (None elsewhere). One view may have lost the tube's faint end, or
+        the other run on past it: the ends alone do not tell which (wide
+        seeds 2-5, docs/envelope.md rounds 25-26). A checker that reads the
+        images takes it where it passes (:mod:`rig.bench.reconstruct`
+        runs the self-check on it first).
     """
 
     points_world_mm: np.ndarray
@@ -289,6 +297,7 @@ class FastReconstruction:
     correspondence: str
     timings_ms: dict
     suspect_reason: object = None
+    alternative: object = None
 
 
 # ----------------------------------------------------------------------------- prepare
@@ -598,13 +607,18 @@ def _tip_radius(model: FastModel, views: dict, params: FastParams, s_tr: dict) -
 
 
 def _to_tip(model: FastModel, views: dict, params: FastParams, dense: np.ndarray, t1: np.ndarray, s_tr: dict,
-            fine: float) -> np.ndarray:
+            fine: float) -> tuple:
     """The dense curve (world, mm) continued, or cut, along its end tangent ``t1`` to the silhouette ends
     seen in both views, less the end cap's extent (the views weighted by the square of their px per mm).
 
     Where that straight continuation leaves one view's end more than ``params.tip_triangulate_px`` off (the
     tube bends over its last mm, and the end tangent points the views' ends apart), the end is triangulated
-    from the two silhouette ends instead and joined by a straight piece."""
+    from the two silhouette ends instead and joined by a straight piece.
+
+    Returns ``(dense, farther)``: ``farther`` is the curve continued to the farther view's end where the
+    views disagree (None where they agree). Either view may be the wrong one there: one may have lost
+    the tube's faint end, or the other run on past it, and only the images can tell
+    (:attr:`FastReconstruction.alternative`)."""
     t1 = t1 / np.linalg.norm(t1)
     x_end = dense[-1]
     tip_radius = _tip_radius(model, views, params, s_tr)
@@ -620,13 +634,22 @@ def _to_tip(model: FastModel, views: dict, params: FastParams, dense: np.ndarray
         per_view.append(((off - _cap_mm(cam, x_end, t1, tip_radius) * cam.K[0, 0] / z[0]) / g, g))
     den = sum(g * g for _, g in per_view)
     lam = sum(g * g * l for l, g in per_view) / den if den > 0 else 0.0
-    if per_view and max(abs(l - lam) * g for l, g in per_view) > params.tip_triangulate_px:
-        tip = _triangulated_tip(model, views, x_end, t1, tip_radius, params.max_ray_gap_mm)
-        if tip is not None:
-            lam = float((tip - x_end) @ t1)
-            if lam > 0:
-                k = max(1, int(np.ceil(np.linalg.norm(tip - x_end) / fine)))
-                return np.concatenate([dense, x_end + np.linspace(1.0 / k, 1.0, k)[:, None] * (tip - x_end)])
+    if not (per_view and max(abs(l - lam) * g for l, g in per_view) > params.tip_triangulate_px):
+        return _along_tangent(dense, t1, lam, fine), None
+    farther = _along_tangent(dense, t1, max(l for l, _ in per_view), fine)
+    tip = _triangulated_tip(model, views, x_end, t1, tip_radius, params.max_ray_gap_mm)
+    if tip is not None:
+        lam = float((tip - x_end) @ t1)
+        if lam > 0:
+            k = max(1, int(np.ceil(np.linalg.norm(tip - x_end) / fine)))
+            return np.concatenate([dense, x_end + np.linspace(1.0 / k, 1.0, k)[:, None] * (tip - x_end)]), farther
+    return _along_tangent(dense, t1, lam, fine), farther
+
+
+def _along_tangent(dense: np.ndarray, t1: np.ndarray, lam: float, fine: float) -> np.ndarray:
+    """The dense curve (world, mm) continued straight along its unit end tangent ``t1`` by ``lam`` mm, or cut
+    ``-lam`` mm of arc short where ``lam`` is negative (unchanged where that would leave under two points)."""
+    x_end = dense[-1]
     if lam > 0:
         k = max(1, int(np.ceil(lam / fine)))
         return np.concatenate([dense, x_end + np.linspace(lam / k, lam, k)[:, None] * t1])
@@ -1089,35 +1112,45 @@ class FastReconstructor:
         m, doubt = self._matched(frames, views, detail)
         lap = time.perf_counter()
         s_tr = {n: _transition_s(views[n], model.views[n]) for n in model.pair}
-        points, transition = _backbone(model, params, views, m, s_tr)
+        backbones = _backbone(model, params, views, m, s_tr)
         now = time.perf_counter()
         detail["ends"] = 1e3 * (now - lap)
         timings["triangulate"] = 1e3 * (now - t)
-        tip = points[-1].copy()
-        reason = None
-        if self._prev is not None:
-            reason = jump_check(self._prev[0], self._prev[1], points, tip, params.jump)
-        self._prev = (points, tip)
         lap = time.perf_counter()
-        doubt = doubt or _off_centerline(model, params, views, points)
+        judged = [self._judged(views, bb, doubt) for bb in backbones]
+        self._prev = (backbones[0][0], backbones[0][0][-1].copy())
         detail["reprojection"] = 1e3 * (time.perf_counter() - lap)
         timings["total"] = 1e3 * (time.perf_counter() - t_start)
         timings.update(detail)
-        return _reconstruction(model, views, m, s_tr, (points, tip, transition), reason, timings, doubt)
+        out = [_reconstruction(model, views, m, s_tr, bb, reason, timings, why) for bb, (reason, why) in zip(backbones, judged)]
+        return replace(out[0], alternative=out[1]) if len(out) > 1 else out[0]
+
+    def _judged(self, views: dict, backbone: tuple, doubt: str | None) -> tuple:
+        """``(jump reason, doubt)`` of a backbone ``(points, tip, transition)``: the jump check against the
+        previous frame's backbone and why the method cannot vouch for it (``doubt``, or the reprojection's)."""
+        points, tip, _ = backbone
+        reason = None
+        if self._prev is not None:
+            reason = jump_check(self._prev[0], self._prev[1], points, tip, self.params.jump)
+        return reason, doubt or _off_centerline(self.model, self.params, views, points)
 
 
-def _backbone(model: FastModel, params: FastParams, views: dict, m: _Matched, s_tr: dict) -> tuple:
+def _backbone(model: FastModel, params: FastParams, views: dict, m: _Matched, s_tr: dict) -> list:
     """The matched curve ``m`` continued straight back to the base plane (or the border) and to the tip seen in
-    both views, resampled every ``output_step_mm``: ``(points (n, 3) world mm, (transition_s_mm,
-    transition_world_mm))`` (``s_tr``: each view's curve parameter of the outer tube's end, px)."""
+    both views, resampled every ``output_step_mm``: a list of ``(points (n, 3) world mm, tip (3,) world mm,
+    (transition_s_mm, transition_world_mm))``, a second one with the tip at the farther view's end where the
+    views disagree on it (:func:`_to_tip`; ``s_tr``: each view's curve parameter of the outer tube's end, px)."""
     a, b = model.pair
     q, spl = m.q, m.spline
     fine = 0.5 * params.output_step_mm
     dense = spl(np.linspace(q[0], q[-1], max(8, int(m.chord / fine))))
     dense, base_ext = _to_base(model, params, dense, spl.derivative()(q[0]), fine)
-    dense = _to_tip(model, views, params, dense, spl.derivative()(q[-1]), s_tr, fine)
-    points = resample_polyline(dense, params.output_step_mm, mode="spread")
-    return points, _transition(((a, m.s_a, m.ca), (b, m.s_b, m.cb)), s_tr, q, spl, base_ext, points)
+    out = []
+    for d in _to_tip(model, views, params, dense, spl.derivative()(q[-1]), s_tr, fine):
+        if d is not None:
+            points = resample_polyline(d, params.output_step_mm, mode="spread")
+            out.append((points, points[-1].copy(), _transition(((a, m.s_a, m.ca), (b, m.s_b, m.cb)), s_tr, q, spl, base_ext, points)))
+    return out
 
 
 def _off_centerline(model: FastModel, params: FastParams, views: dict, points: np.ndarray) -> str | None:
