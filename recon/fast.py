@@ -1118,7 +1118,7 @@ class FastReconstructor:
         timings["triangulate"] = 1e3 * (now - t)
         lap = time.perf_counter()
         judged = [self._judged(views, bb, doubt) for bb in backbones]
-        self._prev = (backbones[0][0], backbones[0][0][-1].copy())
+        self._prev = backbones[0][:2]  # (points, tip) of the own reading
         detail["reprojection"] = 1e3 * (time.perf_counter() - lap)
         timings["total"] = 1e3 * (time.perf_counter() - t_start)
         timings.update(detail)
