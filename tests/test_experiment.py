@@ -188,6 +188,30 @@ def test_live_reconstruction_equals_replay(twin_session, tmp_path, capsys):
         assert a == (rec / "frames" / f"{i:06d}.csv").read_bytes()
 
 
+def test_a_live_frame_the_method_doubts_is_suspect(files, tmp_path, monkeypatch, capsys):
+    """No self-check runs live, but a frame the method itself cannot vouch for (its ``suspect_reason``)
+    is recorded ``suspect`` with that reason, never ``ok``, and the closing line counts it."""
+    import dataclasses
+    import json
+
+    from recon.methods import METHODS, Method, get_method
+
+    paper = get_method("paper")
+    doubt = "the tube folds across an epipolar plane"
+
+    def doubting(rig, background_frames, params):
+        inner = paper.prepare(rig, background_frames, params)
+        return lambda frames: dataclasses.replace(inner(frames), suspect_reason=doubt)
+
+    monkeypatch.setitem(METHODS, "doubting", Method("doubting", paper.params_type, doubting, "test: doubts every frame"))
+    out = tmp_path / "session"
+    assert cli(["experiment", str(files["seq"]), "--rig", str(files["twin"]), "--out", str(out), "--reconstruct", "doubting"]) == 0
+    records = [json.loads(line) for line in (out / "live" / "frames.jsonl").read_text().splitlines()]
+    records = [r for r in records if "frame" in r]
+    assert [(r["status"], r["reason"]) for r in records] == [("suspect", doubt)] * len(EXPECTED)
+    assert f"{len(EXPECTED)}/{len(EXPECTED)} frames reconstructed ({len(EXPECTED)} suspect)" in capsys.readouterr().out
+
+
 def test_live_directory_is_a_run_directory_scored_as_reconstruct_scores(twin_session, tmp_path):
     """live/ is written by the run writer (journal, table, summary with run id) and scored over what both cameras see."""
     live = twin_session / "live"

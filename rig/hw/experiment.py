@@ -557,6 +557,9 @@ class ExperimentRunner:
         if result is not None:
             pts = np.asarray(result.points_world_mm, float)
             rec.update(jump_record(result))  # the fast method's temporal check, as reconstruct_session records it
+            own = getattr(result, "suspect_reason", None)
+            if own:  # no self-check runs live, but the method's own doubt is known: never ok
+                rec.update(status="suspect", reason=str(own))
             rec.update(describe_result(result, pts))
             if pair.truth is not None:
                 self._score(rec, pts, pair.truth)

@@ -139,9 +139,10 @@ def _report(runner, out: Path) -> None:
     print(f"camera skew: {fmt('skew_ms', p=3)}; settle wait: {fmt('settle_ms')}; grab: {fmt('grab_ms')}; "
           f"write: {fmt('write_ms')}; frame cycle: {fmt('cycle_ms')}")
     if runner.method:
-        ok = sum(1 for r in runner.live_records if r["status"] == "ok")
-        print(f"live {runner.method}: {ok}/{len(runner.live_records)} frames reconstructed, {fmt('recon_ms')}; "
-              f"outputs in {out / 'live'}")
+        done = [r for r in runner.live_records if r["status"] != "failed"]
+        suspect = sum(1 for r in done if r["status"] == "suspect")
+        print(f"live {runner.method}: {len(done)}/{len(runner.live_records)} frames reconstructed ({suspect} suspect), "
+              f"{fmt('recon_ms')}; outputs in {out / 'live'}")
 
 
 def register(sub) -> None:
