@@ -53,7 +53,7 @@ __all__ = ["summarize", "params_as_dict", "finite_or_none", "SUMMARY", "JOURNAL"
            "json_safe", "json_text", "write_json_atomic", "write_summary_json", "new_run_id", "earlier_files", "remove_files",
            "check_claim", "journal_header", "Journal", "read_journal", "read_summary", "write_backbones_npz", "read_backbones_npz",
            "MODES", "last_journal_record", "RunWriter", "read_run", "kept_frames", "describe_result",
-           "jump_record", "record_backbone", "SUMMARY_EVERY_S", "SUMMARY_COST_FACTOR"]
+           "jump_record", "record_doubt", "record_backbone", "SUMMARY_EVERY_S", "SUMMARY_COST_FACTOR"]
 
 SUMMARY = "summary.json"
 JOURNAL = "frames.jsonl"
@@ -626,6 +626,16 @@ def jump_record(result) -> dict:
     """
     flag = bool(getattr(result, "jump_flag", False))
     return {"jump_flag": flag, "jump_reason": getattr(result, "jump_reason", None) if flag else None}
+
+
+def record_doubt(rec: dict, result) -> None:
+    """Make a frame the method itself cannot vouch for (its ``suspect_reason``) ``suspect`` with that reason.
+
+    Only an ``ok`` record changes: a self-check's verdict, recorded first, keeps its reason.
+    """
+    own = getattr(result, "suspect_reason", None)
+    if own and rec["status"] == "ok":
+        rec.update(status="suspect", reason=str(own))
 
 
 # ----------------------------------------------------------------------------- the writer

@@ -44,6 +44,7 @@ from rig.rundir import (
     jump_record,
     kept_frames,
     params_as_dict,
+    record_doubt,
     remove_files,
 )
 from rig.scoring import score_frame
@@ -148,7 +149,8 @@ def checked_result(rec: dict, result, check_model, images: dict, radii_mm, param
         trial = dict(rec)
         alt_pts = _backbone_points(alt)
         selfcheck_record(trial, check_model, images, alt_pts, radii_mm, params)
-        if trial["status"] == "ok" and not getattr(alt, "suspect_reason", None):
+        record_doubt(trial, alt)
+        if trial["status"] == "ok":
             rec.update(trial, reading="alternative")
             return alt, alt_pts
     pts = _backbone_points(result)
@@ -217,9 +219,7 @@ def _reconstruct_and_judge(rec: dict, session: Session, index: int, reconstruct,
     else:
         pts = _backbone_points(result)
     rec.update(jump_record(result))  # the fast method's temporal check: recorded, the status stays the self-check's
-    own = getattr(result, "suspect_reason", None)
-    if own and rec["status"] == "ok":  # the method's own doubt (recorded when the check passed)
-        rec.update(status="suspect", reason=str(own))
+    record_doubt(rec, result)  # the method's own doubt, where the check passed
     rec.update(describe_result(result, pts))
     _score(rec, session, index, pts)
     return pts

@@ -31,7 +31,7 @@ import numpy as np
 from recon.errors import FrameError
 from recon.methods import get_method
 from rig.hw.actuator import JOINTS, JointValues, SoftLimits
-from rig.rundir import RunWriter, describe_result, journal_header, jump_record, params_as_dict
+from rig.rundir import RunWriter, describe_result, journal_header, jump_record, params_as_dict, record_doubt
 from rig.scoring import score_frame
 from rig.session import SessionWriter
 from twin.schema import NONNEGATIVE, POSITIVE, REQUIRED, SceneError, Table, read_toml
@@ -557,9 +557,7 @@ class ExperimentRunner:
         if result is not None:
             pts = np.asarray(result.points_world_mm, float)
             rec.update(jump_record(result))  # the fast method's temporal check, as reconstruct_session records it
-            own = getattr(result, "suspect_reason", None)
-            if own:  # no self-check runs live, but the method's own doubt is known: never ok
-                rec.update(status="suspect", reason=str(own))
+            record_doubt(rec, result)  # no self-check runs live, but the method's own doubt is known: never ok
             rec.update(describe_result(result, pts))
             if pair.truth is not None:
                 self._score(rec, pts, pair.truth)
