@@ -6,6 +6,9 @@ levels), and its noise against the variance the model predicts (shot noise in
 proportion to the signal, plus read noise) and against the independence of its draws.
 No OpenGL: these tests run anywhere.
 """
+from dataclasses import replace
+
+import cv2
 import numpy as np
 import pytest
 
@@ -29,7 +32,10 @@ def _oracle(radiance, noise, t_frames, rng):
     """expose() of a mono signal (H, W) or RGB radiance (H, W, 3) as NumPy array passes, with the same normals."""
     gain, offset = lighting_field(noise, radiance.shape[:2], t_frames, rng)
     gain = gain * np.float32(255.0)
-    img = np.clip(radiance * (gain if radiance.ndim == 2 else gain[..., None]) + np.float32(offset), 0.0, 255.0)
+    img = radiance * (gain if radiance.ndim == 2 else gain[..., None]) + np.float32(offset)
+    if noise.blur_px > 0:  # the lens blurs the lit image, the sensor's noise comes after
+        img = cv2.GaussianBlur(img, (0, 0), noise.blur_px)
+    img = np.clip(img, 0.0, 255.0)
     var = img * np.float32(255.0 / noise.photons_full_scale) + np.float32(noise.read_noise_dn**2)
     img += np.sqrt(var) * _hashed_normals(int(rng.integers(0, 2**63)), img.shape)
     return np.clip(np.rint(img), 0, 255).astype(np.uint8)
@@ -40,12 +46,15 @@ def _flat(level_dn: float) -> np.ndarray:
 
 
 @pytest.mark.parametrize("color", ["mono", "rgb"])
-def test_expose_is_its_numpy_model_bit_for_bit(paper_scene, color):
+@pytest.mark.parametrize("blur_px", [0.0, 0.8])
+def test_expose_is_its_numpy_model_bit_for_bit(paper_scene, color, blur_px):
+    # With blur the gain is applied before it, so the compiled pass runs its uniform-gain loop.
     shape = SHAPE if color == "mono" else SHAPE + (3,)
     radiance = np.random.default_rng(0).uniform(0.0, 1.0, shape).astype(np.float32)
+    noise = replace(paper_scene.noise, blur_px=blur_px)
     for t in (0.0, 17.0):
-        got = expose(radiance, paper_scene.noise, t, frame_rng(5, "expose-frame", 2, "side"), color)
-        want = _oracle(radiance, paper_scene.noise, t, frame_rng(5, "expose-frame", 2, "side"))
+        got = expose(radiance, noise, t, frame_rng(5, "expose-frame", 2, "side"), color)
+        want = _oracle(radiance, noise, t, frame_rng(5, "expose-frame", 2, "side"))
         assert np.array_equal(got, want)
 
 

@@ -113,34 +113,62 @@ def _normal_levels(bits: int) -> np.ndarray:
 _NORMAL_LEVELS = _normal_levels(16)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _lit_nb(s, g, offset):  # pragma: no cover - compiled
+    """``clip(s * g + offset, 0, 255)`` (float32 DN)."""
+    return min(max(s * g + offset, np.float32(0.0)), np.float32(255.0))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _noisy_nb(x, shot_per_dn, read_var, i, key, levels):  # pragma: no cover - compiled
+    """``x`` (DN) plus the shot and read noise of flat sample ``i`` (see :func:`_sensor_nb`)."""
+    h = key + np.uint64(i) * np.uint64(0x9E3779B97F4A7C15)
+    h = (h ^ (h >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    h = (h ^ (h >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    h ^= h >> np.uint64(31)
+    return x + np.sqrt(x * shot_per_dn + read_var) * levels[h & np.uint64(levels.shape[0] - 1)]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _dn_nb(x):  # pragma: no cover - compiled
+    """``x`` (DN) rounded half to even and saturated to uint8."""
+    return np.uint8(min(max(np.rint(x), np.float32(0.0)), np.float32(255.0)))
+
+
 @njit(cache=True, nogil=True)
-def _sensor_nb(signal, gain, offset, shot_per_dn, read_var, key, levels, out):  # pragma: no cover - compiled
+def _sensor_nb(signal, channels, gain, offset, shot_per_dn, read_var, key, levels, out):  # pragma: no cover - compiled
     """The per-pixel sensor model of :func:`expose`, fused into one pass (float32 throughout).
 
-    Pixel ``p``, channel ``k``: ``x = clip(signal[p, k] * gain[p] + offset, 0, 255)`` DN, plus
-    ``sqrt(x * shot_per_dn + read_var) * z`` when ``levels`` is not empty, rounded half to
-    even and saturated into ``out[p, k]`` (uint8). ``z`` is ``levels[h & (len - 1)]`` with
-    ``h`` SplitMix64's output for the counter ``key + (p * channels + k) * golden``, so
-    every (image, pixel, channel) has its own independent draw, the same in any order.
-    A ``gain`` of length 1 applies to every pixel.
+    ``signal`` and ``out`` are flat (pixels x ``channels``). Sample ``i`` (pixel ``i // channels``):
+    ``x = clip(signal[i] * gain[pixel] + offset, 0, 255)`` DN, plus ``sqrt(x * shot_per_dn + read_var) * z``
+    when ``levels`` is not empty, rounded half to even and saturated into ``out[i]`` (uint8). ``z`` is
+    ``levels[h & (len - 1)]`` with ``h`` SplitMix64's output for the counter ``key + i * golden``, so every
+    (image, pixel, channel) has its own independent draw, the same in any order. A ``gain`` of length 1
+    applies to every pixel.
+
+    Each case has a loop of its own without branches in it, the gain read at ``i`` where it can be: LLVM
+    vectorizes those, a third of the time of one general loop (the same values, bit for bit).
     """
-    n, c = signal.shape
-    step = 1 if gain.shape[0] == n else 0
+    n = signal.shape[0]
     noisy = levels.shape[0] > 0
-    mask = np.uint64(max(levels.shape[0], 1) - 1)
-    golden, mix1, mix2 = np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
-    lo, hi = np.float32(0.0), np.float32(255.0)
-    for p in range(n):
-        g = gain[p * step]
-        for k in range(c):
-            x = min(max(signal[p, k] * g + offset, lo), hi)
-            if noisy:
-                h = key + np.uint64(p * c + k) * golden
-                h = (h ^ (h >> np.uint64(30))) * mix1
-                h = (h ^ (h >> np.uint64(27))) * mix2
-                h ^= h >> np.uint64(31)
-                x += np.sqrt(x * shot_per_dn + read_var) * levels[h & mask]
-            out[p, k] = np.uint8(min(max(np.rint(x), lo), hi))
+    if gain.shape[0] == 1 or channels == 1:
+        step = 0 if gain.shape[0] == 1 else 1
+        if noisy:
+            for i in range(n):
+                x = _lit_nb(signal[i], gain[i * step], offset)
+                out[i] = _dn_nb(_noisy_nb(x, shot_per_dn, read_var, i, key, levels))
+        else:
+            for i in range(n):
+                out[i] = _dn_nb(_lit_nb(signal[i], gain[i * step], offset))
+        return out
+    for p in range(n // channels):
+        g = gain[p]
+        if noisy:
+            for i in range(p * channels, (p + 1) * channels):
+                out[i] = _dn_nb(_noisy_nb(_lit_nb(signal[i], g, offset), shot_per_dn, read_var, i, key, levels))
+        else:
+            for i in range(p * channels, (p + 1) * channels):
+                out[i] = _dn_nb(_lit_nb(signal[i], g, offset))
     return out
 
 
@@ -161,14 +189,15 @@ def _sensor(signal: np.ndarray, gain: np.ndarray, offset: float, noise: NoiseMod
     offset : float
         DN.
     """
-    flat = np.ascontiguousarray(signal, dtype=np.float32).reshape(signal.shape[0] * signal.shape[1], -1)
+    flat = np.ascontiguousarray(signal, dtype=np.float32).reshape(-1)
+    channels = 1 if signal.ndim == 2 else signal.shape[2]
     shot = np.float32(255.0 / noise.photons_full_scale) if noise.photons_full_scale > 0 else np.float32(0.0)
     read_var = np.float32(noise.read_noise_dn**2) if noise.read_noise_dn > 0 else np.float32(0.0)
     noisy = shot > 0 or read_var > 0
     key = np.uint64(rng.integers(0, 2**63)) if noisy else np.uint64(0)
     levels = _NORMAL_LEVELS if noisy else _NORMAL_LEVELS[:0]
     out = np.empty(flat.shape, np.uint8)
-    _sensor_nb(flat, np.ascontiguousarray(gain, dtype=np.float32).ravel(), np.float32(offset), shot, read_var, key, levels, out)
+    _sensor_nb(flat, channels, np.ascontiguousarray(gain, dtype=np.float32).ravel(), np.float32(offset), shot, read_var, key, levels, out)
     return out.reshape(signal.shape)
 
 
