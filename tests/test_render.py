@@ -157,3 +157,33 @@ def test_the_set_draws_in_the_order_it_was_built():
     scene.remove_node(meshes.pop(7))
     assert pyrender.renderer.Renderer._sorted_mesh_nodes(None, scene) == meshes
     assert list(scene.light_nodes) == lights
+
+
+def _pyrender_linear_depth(raw: np.ndarray, z_near: float, z_far) -> np.ndarray:
+    """pyrender 0.1.x's depth read-back after glReadPixels (Renderer._read_main_framebuffer), as NumPy passes."""
+    depth_im = np.flip(raw, axis=0)
+    inf_inds = depth_im == 1.0
+    depth_im = 2.0 * depth_im - 1.0
+    noninf = np.logical_not(inf_inds)
+    if z_far is None:
+        depth_im[noninf] = 2 * z_near / (1.0 - depth_im[noninf])
+    else:
+        depth_im[noninf] = (2.0 * z_near * z_far) / (z_far + z_near - depth_im[noninf] * (z_far - z_near))
+    depth_im[inf_inds] = 0.0
+    return depth_im
+
+
+@pytest.mark.parametrize("z_far", [2000.0, None])
+def test_depth_read_back_is_pyrenders_bit_for_bit(z_far):
+    """The compiled read-back gives pyrender's depth (mm) to the bit, rows flipped, 0 where nothing was drawn.
+
+    Fails if the float32 operations differ in order or precision from pyrender's (the labels' and the
+    truth depth's pixels would move), or the rows are not flipped."""
+    from twin.render import _linear_depth_nb
+
+    rng = np.random.default_rng(3)
+    raw = rng.uniform(0.9, 1.0, (37, 53)).astype(np.float32)
+    raw[rng.random(raw.shape) < 0.3] = 1.0
+    got = _linear_depth_nb(raw, 10.0, -1.0 if z_far is None else z_far)
+    want = _pyrender_linear_depth(raw.copy(), 10.0, z_far)
+    assert got.dtype == np.float32 and np.array_equal(got, want)
