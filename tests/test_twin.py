@@ -7,10 +7,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from twin.gl import available_platforms
 from twin.groundtruth import extend_to_mesh_start, inside_fraction, projected_tube_area_px
-from twin.mesh import tube_meshes
+from twin.mesh import ring_samples, tube_meshes
 from twin.simulator import Twin
 
 #: Imports the modules named on the command line, then prints what of OpenGL they brought in.
@@ -118,6 +120,36 @@ def test_tube_meshes_are_watertight_with_a_step(paper_scene, paper_twin):
         r = paper_scene.robot.tubes[i].outer_radius_mm
         length = joints.extension_mm[i] - m.vertices[:, 0].min()
         assert m.volume == pytest.approx(np.pi * r * r * length, rel=0.05)
+
+
+def _polyline_distance(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Distance (mm) of each of ``points`` (n, 3) from the polyline ``poly`` (m, 3)."""
+    a, b = poly[:-1], poly[1:]
+    ab = b - a
+    t = np.clip(np.einsum("pkd,kd->pk", points[:, None] - a[None], ab) / np.maximum((ab * ab).sum(1), 1e-18), 0.0, 1.0)
+    near = a[None] + t[..., None] * ab[None]
+    return np.linalg.norm(points[:, None] - near, axis=2).min(axis=1)
+
+
+@given(st.floats(0.0, 0.2), st.floats(5.0, 150.0), st.floats(0.001, 0.02), st.floats(1.0, 4.0))
+def test_tube_rings_follow_the_backbone_within_the_tolerance(kappa_per_mm, length_mm, tolerance_mm, max_step_mm):
+    """A planar arc (curvature ``kappa``) sampled every 0.5 mm: the kept rings' polyline passes within the
+    tolerance of every sample, its steps are at most ``max_step_mm``, and the ends and their neighbours stay.
+    Fails if the greedy walk keeps a chord that a dropped sample bulges past, or never drops one."""
+    s = np.linspace(0.0, length_mm, int(np.ceil(length_mm / 0.5)) + 1)
+    if kappa_per_mm == 0.0:
+        pts = np.stack([np.zeros_like(s), np.zeros_like(s), s], axis=1)
+    else:
+        pts = np.stack([(1 - np.cos(kappa_per_mm * s)) / kappa_per_mm, np.zeros_like(s), np.sin(kappa_per_mm * s) / kappa_per_mm], axis=1)
+    keep = ring_samples(pts, tolerance_mm, max_step_mm)
+    n = len(pts)
+    assert keep[0] == 0 and keep[-1] == n - 1 and np.all(np.diff(keep) > 0)
+    assert {1, n - 2} <= set(keep.tolist()) or n <= 3
+    assert _polyline_distance(pts, pts[keep]).max() <= tolerance_mm + 1e-12
+    assert np.linalg.norm(np.diff(pts[keep], axis=0), axis=1).max() <= max_step_mm + 1e-9
+    # Where one chord of the step would do (the sagitta of max_step_mm within the tolerance), it is taken.
+    if kappa_per_mm * max_step_mm**2 / 8 < 0.5 * tolerance_mm and n > 3 + 4 * max_step_mm:
+        assert len(keep) <= 4 + np.ceil((length_mm - 1.0) / (max_step_mm - 0.5))
 
 
 def test_background_frames_have_no_robot(paper_twin):

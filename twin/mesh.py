@@ -14,7 +14,7 @@ from recon.tubemesh import swept_rings
 
 from .robot import Backbone, Joints, Robot
 
-__all__ = ["tube_meshes", "swept_tube", "vertex_normals", "sample_backbone", "box_mesh", "cylinder_mesh", "plane_mesh"]
+__all__ = ["tube_meshes", "ring_samples", "swept_tube", "vertex_normals", "sample_backbone", "box_mesh", "cylinder_mesh", "plane_mesh"]
 
 
 def sample_backbone(backbone: Backbone, s_mm: np.ndarray) -> tuple:
@@ -60,9 +60,11 @@ def swept_tube(points_mm: np.ndarray, frames: np.ndarray, radius_mm: float, side
 
 
 def tube_meshes(
-    backbone: Backbone, robot: Robot, joints: Joints, step_mm: float = 0.5, hidden_mm: float = 8.0, sides: int = 32
+    backbone: Backbone, robot: Robot, joints: Joints, step_mm: float = 0.5, hidden_mm: float = 8.0, sides: int = 32,
+    max_ring_step_mm: float = 2.0,
 ) -> list:
-    """One closed mesh per tube, swept along ``backbone``.
+    """One closed mesh per tube, swept along ``backbone``: the backbone sampled every ``step_mm``, rings at
+    the samples :func:`ring_samples` keeps (at most ``max_ring_step_mm`` apart), ``sides`` vertices each.
 
     The outermost tube starts ``hidden_mm`` inside the actuation unit (s < 0) so
     no gap shows at the pin vise; each inner tube starts 1 mm inside the tube
@@ -82,10 +84,61 @@ def tube_meshes(
         if ext - start <= 1e-6 or (i > 0 and ext <= joints.extension_mm[i - 1]):
             continue
         n = max(2, int(np.ceil((ext - start) / step_mm)) + 1)
-        s = np.linspace(start, ext, n)
-        p, R = sample_backbone(backbone, s)
-        out.append((i, swept_tube(p, R, tube.outer_radius_mm, sides=sides)))
+        p, R = sample_backbone(backbone, np.linspace(start, ext, n))
+        keep = ring_samples(p, tube.outer_radius_mm * (1.0 - np.cos(np.pi / sides)), max_ring_step_mm)
+        out.append((i, swept_tube(p[keep], R[keep], tube.outer_radius_mm, sides=sides)))
     return out
+
+
+def ring_samples(points_mm: np.ndarray, tolerance_mm: float, max_step_mm: float) -> np.ndarray:
+    """Indices of the samples ``points_mm`` (n, 3) that a swept tube needs as rings: the first, the last,
+    the ones next to them, and in between as few as keep every dropped sample within ``tolerance_mm`` of the
+    chord between the kept ones around it, at most ``max_step_mm`` apart.
+
+    :func:`tube_meshes` passes the facets' own depth, ``r (1 - cos(pi / sides))``: the rings' chords then cut
+    no deeper into a bend than the polygon already cuts into the tube's section. Where the tube is straight
+    that is one ring every ``max_step_mm``: llvmpipe's time for a robot grows with its triangles.
+    """
+    pts = np.ascontiguousarray(points_mm, dtype=np.float64)
+    keep = np.empty(len(pts), np.int64)
+    return keep[:_ring_samples_nb(pts, float(tolerance_mm), float(max_step_mm), keep)].copy()
+
+
+@njit(cache=True, nogil=True)
+def _ring_samples_nb(pts, tol, max_step, keep):  # pragma: no cover - compiled
+    """:func:`ring_samples` into ``keep``; returns how many. Greedy: from each kept sample, the chord is
+    stretched one sample at a time while it stays within ``max_step`` and passes within ``tol`` of every
+    sample it spans; the samples next to the ends always stay (the end rings' normals lean towards the caps,
+    and the shading blends them into the tube's over the first ring step: a highlight stopped up to 2 mm
+    short of a step)."""
+    n = pts.shape[0]
+    keep[0] = 0
+    m, i = 1, 0
+    while i < n - 1:
+        j = i + 1
+        while j + 1 < n and j != 1 and j != n - 2 and _chord_within_nb(pts, i, j + 1, tol, max_step):
+            j += 1
+        keep[m] = j
+        m += 1
+        i = j
+    return m
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _chord_within_nb(pts, a, b, tol, max_step):  # pragma: no cover - compiled
+    """Whether the chord from sample ``a`` to ``b`` is at most ``max_step`` long and passes within ``tol`` of
+    every sample between (mm)."""
+    c0, c1, c2 = pts[b, 0] - pts[a, 0], pts[b, 1] - pts[a, 1], pts[b, 2] - pts[a, 2]
+    ll = c0 * c0 + c1 * c1 + c2 * c2
+    if ll > max_step * max_step:
+        return False
+    for k in range(a + 1, b):
+        v0, v1, v2 = pts[k, 0] - pts[a, 0], pts[k, 1] - pts[a, 1], pts[k, 2] - pts[a, 2]
+        t = (v0 * c0 + v1 * c1 + v2 * c2) / ll if ll > 0.0 else 0.0
+        d0, d1, d2 = v0 - t * c0, v1 - t * c1, v2 - t * c2
+        if d0 * d0 + d1 * d1 + d2 * d2 > tol * tol:
+            return False
+    return True
 
 
 def box_mesh(lo_mm, hi_mm) -> trimesh.Trimesh:
