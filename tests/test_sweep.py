@@ -200,3 +200,30 @@ def test_a_wide_bench_on_a_real_scheduler_equals_the_serial_run(tmp_path, schedu
                {k: v for k, v in serial["methods"][m].items() if k not in drop}
     keys = [json.loads(line)["key"] for line in (tmp_path / "spread" / "sweep.jsonl").read_text().splitlines()]
     assert sorted(keys) == ["wide-5-0", "wide-5-1"]
+
+
+def test_a_local_cluster_that_does_not_start_is_tried_again_then_one_line(monkeypatch):
+    """distributed's IO loop must start within 10 s; on a loaded machine it once did not (AssertionError in
+    LoopRunner). A failed start is tried again; where every try fails the sweep stops with one line."""
+    import rig.bench.sweep as sweep
+
+    real, calls = sweep.LocalCluster, []
+
+    def flaky(**kw):
+        calls.append(kw)
+        if len(calls) == 1:
+            raise AssertionError
+        return real(**kw)
+
+    monkeypatch.setattr(sweep, "LocalCluster", flaky)
+    with dask_client(None, 1) as client:
+        assert client.submit(lambda x: x + 1, 1).result() == 2
+    assert len(calls) == 2
+
+    def never(**kw):
+        raise AssertionError
+
+    monkeypatch.setattr(sweep, "LocalCluster", never)
+    with pytest.raises(SweepError, match=r"^the local Dask cluster did not start in 3 tries \(AssertionError\): the machine may be overloaded"):
+        with dask_client(None, 1):
+            pass

@@ -163,9 +163,30 @@ def dask_client(scheduler: str | None = None, n_workers: int | None = None, memo
         yield None
         return
     n = n_workers or os.cpu_count() or 1
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, memory_limit=memory_per_worker,
-                      dashboard_address=None, env=_ONE_THREAD) as cluster, Client(cluster) as client:
+    with _local_cluster(n, memory_per_worker) as cluster, Client(cluster) as client:
         yield client
+
+
+#: Starts of a LocalCluster tried before a sweep gives up.
+_CLUSTER_TRIES = 3
+
+
+def _local_cluster(n_workers: int, memory_per_worker: str) -> LocalCluster:
+    """A LocalCluster of ``n_workers`` one-thread worker processes, its start tried up to :data:`_CLUSTER_TRIES`
+    times.
+
+    Its IO loop must start within 10 s (``distributed``'s own limit, an ``AssertionError`` when missed). On a
+    2-core machine busy with a 5 MP bench beside the test suite's two workers it once did not; a second start
+    is cheaper than a lost sweep. Raises :class:`SweepError` (one line) when no try starts.
+    """
+    for _ in range(_CLUSTER_TRIES):
+        try:
+            return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, memory_limit=memory_per_worker,
+                                dashboard_address=None, env=_ONE_THREAD)
+        except (AssertionError, TimeoutError, OSError) as exc:
+            last = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+    raise SweepError(f"the local Dask cluster did not start in {_CLUSTER_TRIES} tries ({last}): the machine may be "
+                     "overloaded; run again, or with --workers 0 (in this process)")
 
 
 def run_sweep(client, tasks: list, journal: Journal, progress=None, stage: str = "sweep", retries: int = 2) -> list:
