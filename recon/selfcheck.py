@@ -145,16 +145,24 @@ class SelfCheckParams:
         suite against the truth (window means, ratio 2): 97 % of such on-tube
         samples supported, 9 % of off-tube ones; now running medians and ratio
         3 (ratio 2 let a backbone with a 98 px detour pass on wide-2-7).
-    tip_probe_start_px, tip_probe_px, tip_probe_ratio, max_beyond_tip_contrast
+    tip_probe_start_px, tip_probe_px, tip_probe_radii, tip_probe_min_px, tip_probe_ratio, max_beyond_tip_contrast
         The tip probe: the same difference on the backbone's continuation
         beyond the reprojected tip (along the tip's tangent, from
-        ``tip_probe_start_px`` for ``tip_probe_px``), its mean over
-        ``max(contrast_min, tip_probe_ratio * beside)``; above
+        ``tip_probe_start_px`` for ``tip_probe_px`` or ``tip_probe_radii``
+        outer radii, the longer), the largest mean over its first k >=
+        ``tip_probe_min_px`` samples, over ``max(contrast_min, tip_probe_ratio
+        * beside)`` (beside: the mean over the whole probe); above
         ``max_beyond_tip_contrast`` in any view the tube goes on: the backbone
         is short (a faint inner tube that the foreground does not show). The
         start (8 px) is the unexplained length's limit: a tip 8 footprints
         short is still good; it moves out by how far the tube's flat end face
         reaches beyond the tip, ``r_out |t . ray|`` px (a tube seen end on).
+        The prefix means: a tube that goes on a few px past the start is
+        diluted over the whole probe by the backdrop after it (paper,
+        wide-2-3 frame 1: 13 footprints short, 1.12). The length in radii: a
+        tube 9-13 px in radius (5 MP) has stretches of its own diameter as
+        faint as the backdrop (wide-2-3 frame 0: 51 footprints short, the
+        tube faint 7-23 px past the tip, 1.27 over 12 px).
     max_tip_off_foreground_px : float
         Limit of the length (px) of the judged curve's end with no foreground
         (nor contrast support) on it: a backbone that runs on beyond the tip
@@ -264,6 +272,8 @@ class SelfCheckParams:
     tip_probe_ratio: float = 2.0
     tip_probe_start_px: float = 8.0
     tip_probe_px: float = 12.0
+    tip_probe_radii: float = 3.0
+    tip_probe_min_px: float = 4.0
     kink_chord_mm: float = 3.0
     max_strain: float = 0.08
     max_kink_px: float = 5.0
@@ -862,10 +872,12 @@ def _beyond_tip(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv_curve
     """Tube contrast on the backbone's continuation beyond its reprojected tip, over what would flag it (> 1: the tube goes on).
 
     Samples every px from ``tip_probe_start_px + end_face_px`` to that plus
-    ``tip_probe_px`` beyond the tip along the tip's tangent (taken over the
-    last ``2 r_out`` px); their mean difference from the background across
-    the middle against beside (:func:`_contrast_profiles`): ``mean_centre /
-    max(contrast_min, tip_probe_ratio * mean_beside)`` (means, not medians: a
+    ``max(tip_probe_px, tip_probe_radii * r_out)`` beyond the tip along the
+    tip's tangent (taken over the last ``2 r_out`` px); their difference from
+    the background across the middle against beside
+    (:func:`_contrast_profiles`): ``best_centre / max(contrast_min,
+    tip_probe_ratio * mean_beside)``, ``best_centre`` the largest mean over
+    the probe's first k >= ``tip_probe_min_px`` samples (means, not medians: a
     faint tube's difference is spotty, and medians or the weaker half of the
     probe left the faint short tips of the wide suite silent); None when less than
     half of the probe is in the image.
@@ -875,7 +887,7 @@ def _beyond_tip(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv_curve
         return None
     tip, d = end
     start = params.tip_probe_start_px + end_face_px
-    dist = np.arange(start, start + params.tip_probe_px + 1e-9, 1.0)
+    dist = np.arange(start, start + max(params.tip_probe_px, params.tip_probe_radii * r_out_tip) + 1e-9, 1.0)
     pts = tip[None, :] + dist[:, None] * d[None, :]
     h, w = gray.shape
     inside = (pts[:, 0] >= 0) & (pts[:, 0] <= w - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= h - 1)
@@ -888,7 +900,11 @@ def _beyond_tip(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv_curve
     ok = np.isfinite(centre) & np.isfinite(beside)
     if ok.sum() < 0.5 * len(dist):
         return None
-    return float(np.mean(centre[ok]) / max(params.contrast_min, params.tip_probe_ratio * float(np.mean(beside[ok]))))
+    # A tube that goes on a little past the start is diluted by the bare backdrop after it in the whole probe's mean.
+    c = centre[ok]
+    k_min = min(len(c), max(1, int(round(params.tip_probe_min_px))))
+    best = float(np.max((np.cumsum(c) / np.arange(1, len(c) + 1))[k_min - 1:]))
+    return best / max(params.contrast_min, params.tip_probe_ratio * float(np.mean(beside[ok])))
 
 
 def _end_face_share(camera, points_world_mm: np.ndarray, chord_mm: float) -> float:

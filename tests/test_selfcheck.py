@@ -340,6 +340,19 @@ def test_a_tip_cut_short_on_a_faint_inner_tube_is_flagged_by_the_tip_probe(model
     assert side["beyond_tip_contrast"] > p.max_beyond_tip_contrast, side
 
 
+def test_a_tip_a_little_beyond_the_probe_start_short_is_flagged(model, rendered):
+    # 1.4 mm (12 footprints) short on the faint inner tube: the tube fills the probe's first 4 px, and its
+    # mean over all 12 px read 1.23 (paper, wide-2-3 frame 1: 13 footprints short, reported ok at 1.12).
+    images = _faint_inner_tube(rendered, 0.2)
+    short = _check(model, rendered, rendered.truth[rendered.s_mm <= rendered.s_mm[-1] - 1.4], images)
+    assert not short.ok and "goes on beyond the reprojected tip" in short.reason, short.reason
+    whole_probe = SelfCheckParams(tip_probe_radii=0.0, tip_probe_min_px=100.0)
+    diluted = check_backbone(model, images, rendered.truth[rendered.s_mm <= rendered.s_mm[-1] - 1.4], rendered.radii,
+                             whole_probe)
+    assert max(f["beyond_tip_contrast"] for f in diluted.figures.values()) < whole_probe.max_beyond_tip_contrast
+    assert _check(model, rendered, rendered.truth, images).ok
+
+
 @pytest.mark.parametrize("masks", [False, True])
 def test_a_tip_cut_short_that_clings_to_the_band_is_flagged_by_the_overhang(rendered, masks):
     # 1.2 mm (10 footprints) off the tip: the inner tube beyond the band's square end reaches
