@@ -103,6 +103,13 @@ class SelfCheckParams:
         Limit of (c'): the largest running median of the offsets over
         ``centerline_window_px`` of the curve (px): a stretch where the
         backbone leaves the tube, which the RMS of a long robot hides.
+    min_section_width_share, section_width_window_px : float
+        A clean cross-section narrower than this share of the median width
+        of the clean cross-sections over ``section_width_window_px`` of the
+        curve around it is left out of (c) and (c'): it covers one side of
+        the tube only (the other as bright as the backdrop), and its middle
+        lies off the axis by up to a radius. The robot's tubes differ in
+        width, so no fixed width (only ``1.5 r_in``) tells. 0: none left out.
     min_visible_px : float
         A view in which less than this length of the backbone (px) is in the
         image, in front of the base, is not judged.
@@ -271,6 +278,8 @@ class SelfCheckParams:
     contrast_ratio: float = 3.0
     tip_probe_ratio: float = 2.0
     tip_probe_start_px: float = 8.0
+    min_section_width_share: float = 0.8
+    section_width_window_px: float = 63.0
     tip_probe_px: float = 12.0
     tip_probe_radii: float = 3.0
     tip_probe_min_px: float = 4.0
@@ -285,7 +294,7 @@ class SelfCheckParams:
         if int(self.jitter_window_px) != self.jitter_window_px or self.jitter_window_px < 0:
             raise ValueError("SelfCheckParams: jitter_window_px must be an integer >= 0")
         for name in ("noise_sigmas", "margin_dn", "explain_tolerance_px", "on_foreground_tolerance_px", "profile_search_px",
-                     "min_visible_px", "min_profile_fraction"):
+                     "min_visible_px", "min_profile_fraction", "min_section_width_share", "section_width_window_px"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"SelfCheckParams: {name} must be >= 0")
         for name in ("sample_step_px", "max_unexplained_fraction", "max_unexplained_px", "max_off_foreground_fraction", "max_centerline_rms_px",
@@ -738,7 +747,7 @@ def _near_foreground(fg: np.ndarray, uv: np.ndarray, tol_px: float) -> np.ndarra
 
 def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_out_px: np.ndarray, r_in_px: np.ndarray,
                      params: SelfCheckParams) -> np.ndarray:
-    """Signed distance (px) from each sample to the middle of the foreground run across it; NaN where unclean.
+    """Signed distance (px) from each sample to the middle of the foreground run across it, and the run's width (px); NaN where unclean.
 
     The run is the one nearest the sample along the normal, within the
     outermost radius plus ``profile_search_px``; it must be bounded by
@@ -761,7 +770,7 @@ def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_
     out = np.full(len(uv_roi), np.nan)
     has = P.any(axis=1)
     if not has.any():
-        return out
+        return out, out.copy()
     ar = np.arange(K)[None, :]
     # Bridge gaps up to the outer radius: a metallic tube often has a stripe as bright as
     # the backdrop along it, which splits its cross-section into two runs.
@@ -784,7 +793,9 @@ def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_
     good = has & bounded & (width <= 2.0 * (r_out_px + params.explain_tolerance_px)) & (width >= 1.5 * r_in_px)
     mid = 0.5 * (t[np.clip(lb + 1, 0, K - 1)] + t[np.clip(rb - 1, 0, K - 1)])
     out[good] = mid[good]
-    return out
+    widths = np.full(len(uv_roi), np.nan)
+    widths[good] = width[good]
+    return out, widths
 
 
 def _contrast_profiles(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.ndarray, normals: np.ndarray,
@@ -1135,8 +1146,16 @@ def _centerline_figures(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray,
     """``(centerline_rms_px, centerline_max_px)`` of one view's judged samples (region coordinates), None where too few clean sections."""
     # (c) centerline offset across the tube, on every third sample (the RMS needs no more).
     sub = slice(None, None, 3)
-    offs = _profile_offsets(fg, uv_roi[sub], normals[sub], r_out_px[sub], r_in_px[sub], params)
+    offs, widths = _profile_offsets(fg, uv_roi[sub], normals[sub], r_out_px[sub], r_in_px[sub], params)
     good = np.isfinite(offs)
+    if params.min_section_width_share > 0 and good.sum() >= 3:
+        # A run much narrower than its neighbours covers one side of the tube only (the other side as bright
+        # as the backdrop): its middle is off the axis by up to a radius (wide-3-3 frame 2 of the fast
+        # method, wood grain across a three-tube robot: 2.5 px RMS, the backbone 0.9 footprints off).
+        w = widths[good]
+        n_win = max(1, int(round(params.section_width_window_px / (3 * params.sample_step_px))))
+        idx = np.flatnonzero(good)
+        good[idx[w < params.min_section_width_share * _running_median(w, min(n_win, w.size))]] = False
     enough = good.sum() >= max(10.0, params.min_profile_fraction * offs.size)
     rms = float(np.sqrt(np.mean(offs[good] ** 2))) if enough else None
     # (c') the largest offset over a stretch: a bump where the method's centerline left the tube for

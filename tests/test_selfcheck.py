@@ -536,3 +536,26 @@ def test_a_stretch_whose_depth_no_view_measures_is_flagged():
 
     assert "near an epipolar plane" in _verdict({"a": {"unmeasured_depth_mm": 40.0}}, SelfCheckParams())
     assert "unmeasured_depth_mm" in FIGURE_LIMITS
+
+
+def test_cross_sections_of_one_side_of_the_tube_are_left_out_of_the_centerline_figures():
+    # wide-3-3 frame 2 (fast): across wood grain the foreground covers one side of a three-tube robot's outer
+    # tube over stretches; those runs are wider than 1.5 innermost radii, their middles 5-8 px off the axis:
+    # 2.5 px RMS for a backbone 0.9 footprints off. A tube of radius 10 px along y = 50, the foreground its upper
+    # 9 px only over 21 of every 63 px: left out, the figures read the axis; shifted by 5 px, still flagged.
+    from recon.selfcheck import _centerline_figures
+
+    yy, xx = np.mgrid[0:100, 0:400]
+    tube = np.abs(yy - 50) <= 10
+    one_side = ((xx % 63) < 21) & (yy > 50 - 10 + 9)
+    fg = tube & ~one_side
+    uv = np.stack([np.arange(20.0, 380.0), np.full(360, 50.0)], axis=1)
+    normals = np.tile([0.0, 1.0], (360, 1))
+    r_out, r_in = np.full(360, 10.0), np.full(360, 5.0)
+    p = SelfCheckParams()
+    rms, local = _centerline_figures(fg, uv, normals, r_out, r_in, p)
+    assert rms < 0.5 and local < 0.5, (rms, local)
+    every = SelfCheckParams(min_section_width_share=0.0)
+    assert _centerline_figures(fg, uv, normals, r_out, r_in, every)[0] > every.max_centerline_rms_px
+    shifted = _centerline_figures(np.roll(fg, 5, axis=0), uv, normals, r_out, r_in, p)
+    assert shifted[0] > p.max_centerline_rms_px and shifted[1] > 4.0, shifted
