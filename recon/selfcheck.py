@@ -258,6 +258,8 @@ class SelfCheckParams:
     max_centerline_rms_px: float = 2.5
     max_centerline_local_px: float = 7.0
     centerline_window_px: float = 15.0
+    min_section_width_share: float = 0.8
+    section_width_window_px: float = 63.0
     max_beyond_tip_contrast: float = 1.3
     max_tip_off_foreground_px: float = 8.0
     tip_tangent_px: float = 15.0
@@ -278,8 +280,6 @@ class SelfCheckParams:
     contrast_ratio: float = 3.0
     tip_probe_ratio: float = 2.0
     tip_probe_start_px: float = 8.0
-    min_section_width_share: float = 0.8
-    section_width_window_px: float = 63.0
     tip_probe_px: float = 12.0
     tip_probe_radii: float = 3.0
     tip_probe_min_px: float = 4.0
@@ -746,7 +746,7 @@ def _near_foreground(fg: np.ndarray, uv: np.ndarray, tol_px: float) -> np.ndarra
 
 
 def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_out_px: np.ndarray, r_in_px: np.ndarray,
-                     params: SelfCheckParams) -> np.ndarray:
+                     params: SelfCheckParams) -> tuple:
     """Signed distance (px) from each sample to the middle of the foreground run across it, and the run's width (px); NaN where unclean.
 
     The run is the one nearest the sample along the normal, within the

@@ -542,12 +542,12 @@ def test_cross_sections_of_one_side_of_the_tube_are_left_out_of_the_centerline_f
     # wide-3-3 frame 2 (fast): across wood grain the foreground covers one side of a three-tube robot's outer
     # tube over stretches; those runs are wider than 1.5 innermost radii, their middles 5-8 px off the axis:
     # 2.5 px RMS for a backbone 0.9 footprints off. A tube of radius 10 px along y = 50, the foreground its upper
-    # 9 px only over 21 of every 63 px: left out, the figures read the axis; shifted by 5 px, still flagged.
+    # 10 of 21 px only over 21 of every 63 px: left out, the figures read the axis; shifted by 5 px, still flagged.
     from recon.selfcheck import _centerline_figures
 
     yy, xx = np.mgrid[0:100, 0:400]
     tube = np.abs(yy - 50) <= 10
-    one_side = ((xx % 63) < 21) & (yy > 50 - 10 + 9)
+    one_side = ((xx % 63) < 21) & (yy >= 50)
     fg = tube & ~one_side
     uv = np.stack([np.arange(20.0, 380.0), np.full(360, 50.0)], axis=1)
     normals = np.tile([0.0, 1.0], (360, 1))
