@@ -96,6 +96,11 @@ class SelfCheckParams:
     max_off_foreground_fraction : float
         Limit of (b): a backbone that leaves the tube for a fifth of its
         in-image length.
+    max_off_foreground_run_fraction : float
+        Limit of (b) over its longest stretch: the longest run of reprojected
+        samples with neither foreground nor tube contrast, as a share of the
+        in-image length. A backbone that bulges off the tube where the tube
+        crosses clutter of its own brightness leaves it in one piece.
     max_centerline_rms_px : float
         Limit of (c) (px). Good reconstructions reproject within about 1 px
         RMS; a backbone offset by 5 px in one view is far beyond 2.5.
@@ -255,6 +260,7 @@ class SelfCheckParams:
     max_unexplained_fraction: float = 0.10
     max_unexplained_px: float = 8.0
     max_off_foreground_fraction: float = 0.20
+    max_off_foreground_run_fraction: float = 0.12
     max_centerline_rms_px: float = 2.5
     max_centerline_local_px: float = 7.0
     centerline_window_px: float = 15.0
@@ -297,7 +303,8 @@ class SelfCheckParams:
                      "min_visible_px", "min_profile_fraction", "min_section_width_share", "section_width_window_px"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"SelfCheckParams: {name} must be >= 0")
-        for name in ("sample_step_px", "max_unexplained_fraction", "max_unexplained_px", "max_off_foreground_fraction", "max_centerline_rms_px",
+        for name in ("sample_step_px", "max_unexplained_fraction", "max_unexplained_px", "max_off_foreground_fraction",
+                     "max_off_foreground_run_fraction", "max_centerline_rms_px",
                      "tip_tangent_px", "max_tip_overhang_px", "kink_chord_mm", "max_strain", "max_kink_px", "max_start_gap_px", "max_unmeasured_depth_mm"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"SelfCheckParams: {name} must be > 0")
@@ -728,6 +735,13 @@ def _cut_tip_cap(band: np.ndarray, uv_roi: np.ndarray, r_band_px: float, tol_px:
     yy, xx = np.mgrid[y0:y1, x0:x1]
     beyond = (xx - tip[0]) * d[0] + (yy - tip[1]) * d[1] > tol_px
     band[y0:y1, x0:x1][beyond] = 0
+
+
+def _longest_run(mask: np.ndarray) -> int:
+    """The length (samples) of the longest run of True in a 1-D bool array (0 when none)."""
+    edges = np.diff(np.concatenate([[0], np.asarray(mask, np.int8), [0]]))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return int(np.max(ends - starts)) if starts.size else 0
 
 
 def _near_foreground(fg: np.ndarray, uv: np.ndarray, tol_px: float) -> np.ndarray:
@@ -1175,7 +1189,8 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     backbone's first point guides the depth of that test for the stretch a
     method leaves out because only this view sees it.
     """
-    none = {"unexplained_fraction": None, "unexplained_px": None, "off_foreground_fraction": None, "centerline_rms_px": None, "centerline_max_px": None,
+    none = {"unexplained_fraction": None, "unexplained_px": None, "off_foreground_fraction": None, "off_foreground_run_fraction": None,
+            "centerline_rms_px": None, "centerline_max_px": None,
             "visible_px": 0.0, "unseen_px": None, "beyond_tip_contrast": None, "tip_off_foreground_px": None,
             "tip_overhang_px": None}
 
@@ -1228,6 +1243,10 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     if params.contrast_window_px > 0 and not view.binary and not on.all():
         on = on | _contrast_support(view, gray, lighting, uvv, normals, r_out[vis], r_in[vis], params)
     off = float(np.mean(~on))
+    # The longest stretch off it: scattered misses are specks and faint spots; one long run is a backbone
+    # that left the tube where this view cannot see it (wide-5-32 frame 0 of the fast method: a 14 px bulge
+    # over a disk of clutter as bright as the tube, 16 % in one run, 16 % in all).
+    off_run = _longest_run(~on) / on.size
     # The tip itself in view (not behind the base): the probe looks beyond it; the overhang stands in for the
     # probe where that cannot run (masks have no contrast to probe): on camera images near the 10-footprint
     # line it only traded good frames for wrong ones (wide seeds 2/3).
@@ -1241,6 +1260,7 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
         _DEBUG[camera.name].update(on=on, lighting=lighting)
     rms, local = _centerline_figures(fg, uvr, normals, r_out[vis], r_in[vis], params)
     return {"unexplained_fraction": unexplained, "unexplained_px": unexplained_px, "off_foreground_fraction": off,
+            "off_foreground_run_fraction": off_run,
             "centerline_rms_px": rms, "centerline_max_px": local, "visible_px": none["visible_px"], "unseen_px": unseen_px, "beyond_tip_contrast": beyond,
             "tip_off_foreground_px": tip_off, "tip_overhang_px": overhang}
 
@@ -1376,6 +1396,9 @@ def _start_gap_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
 FIGURE_LIMITS = {
     "off_foreground_fraction": ("max_off_foreground_fraction",
                                 "{cam}: {pct:.0f} % of the reprojected tube is not on foreground (limit {pct_lim:.0f} %)"),
+    "off_foreground_run_fraction": ("max_off_foreground_run_fraction",
+                                    "{cam}: {pct:.0f} % of the reprojected tube, in one stretch, is on neither foreground nor tube "
+                                    "contrast (limit {pct_lim:.0f} %)"),
     "unexplained_fraction": ("max_unexplained_fraction",
                              "{cam}: {pct:.0f} % of the foreground along the robot is not explained by the backbone (limit {pct_lim:.0f} %)"),
     "unexplained_px": ("max_unexplained_px", "{cam}: {x:.0f} px of tube along the robot are not explained by the backbone (limit {lim:.0f} px)"),
