@@ -703,13 +703,14 @@ def _trim_tip(cameras, silhouettes: list, bb, max_trim_mm: float):
     return replace(bb, points_mm=pts, tip_mm=pts[-1].copy(), length_mm=float(arc_length(pts)[-1]))
 
 
-def _refined(cameras, centerlines: list, disks: list, bb, voxel_size_mm, params: PaperParams):
+def _refined(cameras, centerlines: list, disks: list, bb, voxel_size_mm, params: PaperParams, silhouettes=None):
     """The backbone moved onto the views' centerlines (:func:`recon.subvoxel.refine_backbone`), resampled.
 
     ``disks``: per camera, :func:`recon.centerline.extract_centerline`'s info (the small disk made the tip's centerline).
     """
     pts = refine_backbone(cameras, centerlines, bb.points_mm, voxel_size_mm, params.subvoxel,
-                          erosion_radii_px=[d.get("inner_radius_px") for d in disks])
+                          erosion_radii_px=[d.get("inner_radius_px") for d in disks], silhouettes=silhouettes,
+                          tip_radius_mm=params.inner_tube_radius_mm)
     pts = resample_polyline(pts, params.backbone.step_mm)
     s = arc_length(pts)
     tr = bb.transition_s_mm
@@ -778,7 +779,7 @@ def _backbone(model: PaperModel, names, carved, silhouettes: dict, centerlines: 
     else:
         bb = _continue_to_base(model.rig, bb, params.max_base_gap_mm)
     if params.subvoxel is not None:
-        bb = _refined(cameras, [centerlines[n] for n in names], [disks[n] for n in names], bb, carved.voxel_size_mm, params)
+        bb = _refined(cameras, [centerlines[n] for n in names], [disks[n] for n in names], bb, carved.voxel_size_mm, params, sils)
         bb = _straight_end(bb, carved.voxel_size_mm)
         bb = _trim_tip(cameras, sils, bb, 4.0 * voxel_mm)
     return bb

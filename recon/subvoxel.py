@@ -15,11 +15,15 @@ The views' centerlines are pixel-accurate, so the curve is moved onto them:
   runs within an epipolar plane the views constrain one direction only, and
   the point stays put in the other). Steps are capped at a voxel and smoothed
   along the curve, which averages the pixel grid of the feet.
-* **At the tip.** Each view's centerline is followed along the projected
-  tangent from the reprojected tip until it ends (forward, or backward when
-  the tip overshoots it); the tip moves along the 3-D tangent to the views'
-  ends, weighted by how many px per mm each sees along it, capped at two
-  voxels.
+* **At the tip.** Each view's silhouette (where the caller gives them; else
+  its centerline) is followed along the projected tangent from the
+  reprojected tip until it ends (forward, or backward when the tip
+  overshoots it), less the tube's end face beyond the tip; the tip moves
+  along the 3-D tangent to the views' ends, weighted by how many px per mm
+  each sees along it, capped at six voxels. The silhouette, not the
+  centerline: a two-disk erosion ends a thin tube's centerline up to 16 px
+  before its tip (wide-4-15 frame 2, a plain backdrop: the tip 8.5
+  footprints short).
 
 World coordinates in mm, image coordinates in px (OpenCV convention).
 """
@@ -53,11 +57,16 @@ class SubvoxelParams:
     smooth_passes : int
         Passes of a [1, 2, 1] / 4 filter over the steps along the curve.
     max_tip_voxels : float
-        Cap of the tip's move along the tangent, in largest voxel edges.
+        Cap of the tip's move along the tangent, in largest voxel edges. The
+        carved tip of a thin tube ends up to 3-4 mm (5 voxels) short where
+        its silhouettes run on (wide-4-15 frame 2).
+    tip_from_silhouette : bool
+        Place the tip at the silhouettes' ends (where :func:`refine_backbone`
+        is given them), not the centerlines'.
     on_centerline_px : float
         A sample is on a view's centerline when one lies within this (px).
     tip_end_px, tip_end_per_disk : float
-        How far the tube's end lies beyond its centerline's end (px):
+        Without silhouettes: how far the tube's end lies beyond its centerline's end (px):
         ``tip_end_px + tip_end_per_disk * r``, with ``r`` the radius (px) of
         the disk whose erosion gave the tip's centerline (an erosion shortens
         a tube's end by up to its radius). Fitted to the medians per disk
@@ -69,18 +78,20 @@ class SubvoxelParams:
     max_step_voxels: float = 1.0
     max_foot_px: float = 6.0
     smooth_passes: int = 3
-    max_tip_voxels: float = 2.0
+    max_tip_voxels: float = 6.0
     on_centerline_px: float = 1.5
     tip_end_px: float = 0.5
     tip_end_per_disk: float = 0.5
+    tip_from_silhouette: bool = True
 
 
 class _View:
     """One camera's centerline pixels, for nearest-pixel queries."""
 
-    def __init__(self, camera, centerline: np.ndarray):
+    def __init__(self, camera, centerline: np.ndarray, silhouette: np.ndarray | None = None):
         nz = cv2.findNonZero((np.asarray(centerline) > 0).astype(np.uint8))
         self.camera = camera
+        self.silhouette = silhouette
         self.ok = nz is not None
         if self.ok:
             self.pixels = nz.reshape(-1, 2).astype(np.float64)
@@ -174,10 +185,69 @@ def _tip_reach_mm(view: _View, tip: np.ndarray, tangent: np.ndarray, max_mm: flo
     return float(np.clip((last - uv[0]) @ unit / speed, -max_mm, max_mm)), speed
 
 
-def _tip_move_mm(views: list, end_px: list, tip: np.ndarray, tangent: np.ndarray, max_mm: float, params: SubvoxelParams) -> float:
+def _near_mask(mask: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """(m,) bool: ``mask`` is nonzero within the 3x3 pixels around each point ``uv`` (px; outside the image: False)."""
+    h, w = mask.shape
+    iu, iv = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
+    near = np.zeros(len(uv), bool)
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            ok = (iu + du >= 0) & (iu + du < w) & (iv + dv >= 0) & (iv + dv < h)
+            near[ok] |= mask[iv[ok] + dv, iu[ok] + du] > 0
+    return near
+
+
+def _end_face_px(camera, tip: np.ndarray, tangent: np.ndarray, radius_mm: float) -> float:
+    """How far (px) a tube's flat end face reaches beyond its tip's projection along the projected tangent.
+
+    The face is a disk of ``radius_mm`` across the unit ``tangent``; seen along the ray to the tip it reaches
+    ``radius_mm * |t . ray|`` beyond the tip (none for a tube across the view).
+    """
+    p = camera.world_to_camera(np.stack([tip, tip + tangent]))
+    ray = p[0] / max(float(np.linalg.norm(p[0])), 1e-12)
+    t = p[1] - p[0]
+    f_px = float(np.sqrt(camera.K[0, 0] * camera.K[1, 1]))
+    return radius_mm * abs(float(t @ ray)) / max(float(np.linalg.norm(t)), 1e-12) * f_px / max(float(p[0, 2]), 1e-9)
+
+
+def _silhouette_reach_mm(camera, silhouette: np.ndarray, tip: np.ndarray, tangent: np.ndarray, max_mm: float,
+                         tip_radius_mm: float = 0.0) -> tuple:
+    """Signed distance (mm along the 3-D tangent) from the tip to where the view's silhouette ends (NaN: no
+    say), and the view's px per mm along the tangent.
+
+    The silhouette is read every 0.5 px along the projected tangent's line through the tip, each point with
+    its 3x3 neighbourhood (a curving tube leaves the line by a pixel): from the tip on, where the tip is on
+    it, to its last point before a gap of a pixel; else back to the nearest point on it. Less the pixel the
+    neighbourhood reaches and the end face beyond the tip (:func:`_end_face_px`; ``tip_radius_mm``).
+    """
+    uv, J = camera.project_jacobian(tip[None])
+    dir_px = J[0] @ tangent
+    speed = float(np.linalg.norm(dir_px))
+    if not np.all(np.isfinite(uv)) or speed < 0.2:
+        return np.nan, speed  # the tangent runs nearly along this camera's ray: the view cannot place the tip
+    n = float(np.ceil(max_mm * speed)) + 3.0
+    k = np.arange(-n, n + 0.25, 0.5)
+    on = _near_mask(silhouette, uv[0][None] + k[:, None] * (dir_px / speed)[None])
+    i0 = int(np.searchsorted(k, 0.0))
+    if on[i0]:
+        gap = ~on[i0 + 1:-1] & ~on[i0 + 2:]
+        stop = i0 + 1 + int(np.argmax(gap)) if gap.any() else len(k)
+        j = int(np.flatnonzero(on[:stop])[-1])
+    elif on[:i0].any():
+        j = int(np.flatnonzero(on[:i0])[-1])
+    else:
+        return np.nan, speed
+    # The walk reads each point's 3x3 neighbourhood: it ends a pixel beyond the silhouette.
+    end_px = k[j] - 1.0 - _end_face_px(camera, tip, tangent, tip_radius_mm)
+    return float(np.clip(end_px / speed, -max_mm, max_mm)), speed
+
+
+def _tip_move_mm(views: list, end_px: list, tip: np.ndarray, tangent: np.ndarray, max_mm: float, params: SubvoxelParams,
+                 tip_radius_mm: float = 0.0) -> float:
     """How far (mm) to move the tip along ``tangent``: the views' ends, weighted by their px per mm; NaN: none has a say.
 
-    Each view's end is its centerline's end plus ``end_px`` (px), weighted by
+    Each view's end is its silhouette's end (:func:`_silhouette_reach_mm`, where the view has one and
+    ``tip_from_silhouette``), else its centerline's end plus ``end_px`` (px), weighted by
     the square of its px per mm along the tangent: a view that sees the tip
     foreshortened places it poorly (1 px is 1 mm at 1 px/mm). Not the
     nearest end: a view that lost the tube early is the tip check's
@@ -186,7 +256,10 @@ def _tip_move_mm(views: list, end_px: list, tip: np.ndarray, tangent: np.ndarray
     """
     ends, weights = [], []
     for v, e in zip(views, end_px):
-        reach, speed = _tip_reach_mm(v, tip, tangent, max_mm, params.on_centerline_px)
+        if params.tip_from_silhouette and v.silhouette is not None:
+            (reach, speed), e = _silhouette_reach_mm(v.camera, v.silhouette, tip, tangent, max_mm, tip_radius_mm), 0.0
+        else:
+            reach, speed = _tip_reach_mm(v, tip, tangent, max_mm, params.on_centerline_px)
         if np.isfinite(reach):
             ends.append(reach + e / speed)
             weights.append(speed * speed)
@@ -218,7 +291,7 @@ def _move_tip(points: np.ndarray, tangent: np.ndarray, reach_mm: float) -> np.nd
 
 
 def refine_backbone(cameras, centerlines, points_world_mm, voxel_size_mm, params: SubvoxelParams = SubvoxelParams(),
-                    erosion_radii_px=None) -> np.ndarray:
+                    erosion_radii_px=None, silhouettes=None, tip_radius_mm: float = 0.0) -> np.ndarray:
     """Move a carved backbone onto the views' centerlines (across the curve) and its tip to where they end.
 
     Parameters
@@ -235,6 +308,13 @@ def refine_backbone(cameras, centerlines, points_world_mm, voxel_size_mm, params
         Per camera, the radius (px) of the disk whose erosion gave the
         centerline at the tip (0 for a centerline that is not eroded); sets
         how far beyond its end the tube ends (``tip_end_per_disk``).
+    silhouettes : sequence of (H, W) arrays, optional
+        Each camera's silhouette (nonzero on the robot), in the same order:
+        where given, the tip moves to their ends (``tip_from_silhouette``).
+    tip_radius_mm : float
+        The tube's radius at the tip (mm): its flat end face reaches
+        ``r |t . ray|`` beyond the tip in a view, which the silhouette's end
+        includes (wide-2-14 frame 1: 7.5 px for a tube 17 px in radius).
 
     Returns
     -------
@@ -248,8 +328,9 @@ def refine_backbone(cameras, centerlines, points_world_mm, voxel_size_mm, params
     voxel = float(np.max(voxel_size_mm))
     radii = [0.0] * len(cameras) if erosion_radii_px is None else [float(r or 0.0) for r in erosion_radii_px]
     views, end_px = [], []
-    for c, cl, r in zip(cameras, centerlines, radii):
-        v = _View(c, cl)
+    sils = [None] * len(cameras) if silhouettes is None else list(silhouettes)
+    for c, cl, r, sil in zip(cameras, centerlines, radii, sils):
+        v = _View(c, cl, sil)
         if v.ok:
             views.append(v)
             end_px.append(params.tip_end_px + params.tip_end_per_disk * r)
@@ -258,7 +339,7 @@ def refine_backbone(cameras, centerlines, points_world_mm, voxel_size_mm, params
     for _ in range(params.iterations):
         pts = pts + _across_step(views, pts, voxel, params)
     tangent = _end_tangent(pts, max(1.0, voxel))
-    r = _tip_move_mm(views, end_px, pts[-1], tangent, params.max_tip_voxels * voxel, params)
+    r = _tip_move_mm(views, end_px, pts[-1], tangent, params.max_tip_voxels * voxel, params, tip_radius_mm)
     if np.isfinite(r):
         if r > 1e-6:
             step = float(np.median(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
