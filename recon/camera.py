@@ -191,6 +191,24 @@ class Camera:
         z = self.world_to_camera(point_world_mm)[0, 2]
         return float(z / np.sqrt(self.K[0, 0] * self.K[1, 1]))
 
+    def ray_cosine(self, point_world_mm, direction_world) -> float:
+        """|cos| of the angle between a direction and the viewing ray to a point (0: across the view, 1: along it).
+
+        A tube's flat end face, a disk of radius ``r`` across its tangent, reaches
+        ``r * ray_cosine(tip, tangent)`` beyond the tip's projection along the projected tangent.
+
+        Parameters
+        ----------
+        point_world_mm : (3,) array
+            The point (world frame, mm).
+        direction_world : (3,) array
+            The direction (world frame; any length but 0).
+        """
+        p = self.world_to_camera(np.stack([np.asarray(point_world_mm, float), np.asarray(point_world_mm, float) + direction_world]))
+        t, ray = p[1] - p[0], p[0]
+        nt, nr = float(np.linalg.norm(t)), float(np.linalg.norm(ray))
+        return abs(float(t @ ray)) / (nt * nr) if nt > 1e-12 and nr > 1e-12 else 0.0
+
     # ------------------------------------------------------------ projection
     def world_to_camera(self, points_world_mm) -> np.ndarray:
         """World points in the camera frame.

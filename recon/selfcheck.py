@@ -943,10 +943,8 @@ def _end_face_share(camera, points_world_mm: np.ndarray, chord_mm: float) -> flo
     the tip, where the probe starting 8 px out read the face as tube going on).
     """
     s = arc_length(points_world_mm)
-    p = camera.world_to_camera(np.stack([points_at_arc_length(points_world_mm, [max(0.0, s[-1] - chord_mm)])[0], points_world_mm[-1]]))
-    t, ray = p[1] - p[0], p[1]
-    nt, nr = float(np.linalg.norm(t)), float(np.linalg.norm(ray))
-    return abs(float(t @ ray)) / (nt * nr) if nt > 1e-9 and nr > 1e-9 else 0.0
+    back = points_at_arc_length(points_world_mm, [max(0.0, s[-1] - chord_mm)])[0]
+    return camera.ray_cosine(points_world_mm[-1], points_world_mm[-1] - back)
 
 
 def _unseen_share(camera, others: list, ys: np.ndarray, xs: np.ndarray, uv_bb: np.ndarray, depth_bb: np.ndarray,

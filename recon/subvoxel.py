@@ -197,19 +197,6 @@ def _near_mask(mask: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return near
 
 
-def _end_face_px(camera, tip: np.ndarray, tangent: np.ndarray, radius_mm: float) -> float:
-    """How far (px) a tube's flat end face reaches beyond its tip's projection along the projected tangent.
-
-    The face is a disk of ``radius_mm`` across the unit ``tangent``; seen along the ray to the tip it reaches
-    ``radius_mm * |t . ray|`` beyond the tip (none for a tube across the view).
-    """
-    p = camera.world_to_camera(np.stack([tip, tip + tangent]))
-    ray = p[0] / max(float(np.linalg.norm(p[0])), 1e-12)
-    t = p[1] - p[0]
-    f_px = float(np.sqrt(camera.K[0, 0] * camera.K[1, 1]))
-    return radius_mm * abs(float(t @ ray)) / max(float(np.linalg.norm(t)), 1e-12) * f_px / max(float(p[0, 2]), 1e-9)
-
-
 def _silhouette_reach_mm(camera, silhouette: np.ndarray, tip: np.ndarray, tangent: np.ndarray, max_mm: float,
                          tip_radius_mm: float = 0.0) -> tuple:
     """Signed distance (mm along the 3-D tangent) from the tip to where the view's silhouette ends (NaN: no
@@ -218,7 +205,8 @@ def _silhouette_reach_mm(camera, silhouette: np.ndarray, tip: np.ndarray, tangen
     The silhouette is read every 0.5 px along the projected tangent's line through the tip, each point with
     its 3x3 neighbourhood (a curving tube leaves the line by a pixel): from the tip on, where the tip is on
     it, to its last point before a gap of a pixel; else back to the nearest point on it. Less the pixel the
-    neighbourhood reaches and the end face beyond the tip (:func:`_end_face_px`; ``tip_radius_mm``).
+    neighbourhood reaches and the end face beyond the tip (``tip_radius_mm`` times
+    :meth:`recon.camera.Camera.ray_cosine`, at the tip's px per mm).
     """
     uv, J = camera.project_jacobian(tip[None])
     dir_px = J[0] @ tangent
@@ -238,7 +226,8 @@ def _silhouette_reach_mm(camera, silhouette: np.ndarray, tip: np.ndarray, tangen
     else:
         return np.nan, speed
     # The walk reads each point's 3x3 neighbourhood: it ends a pixel beyond the silhouette.
-    end_px = k[j] - 1.0 - _end_face_px(camera, tip, tangent, tip_radius_mm)
+    face_px = tip_radius_mm * camera.ray_cosine(tip, tangent) / camera.mm_per_pixel_at(tip)
+    end_px = k[j] - 1.0 - face_px
     return float(np.clip(end_px / speed, -max_mm, max_mm)), speed
 
 
