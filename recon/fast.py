@@ -269,14 +269,6 @@ class FastReconstruction:
     suspect_reason : str or None
         Why the method itself cannot vouch for this shape (the frame is
         reported ``suspect``), e.g. a tube folding across an epipolar plane.
-    unverified : str or None
-        What the method took on weaker evidence than its own, for a checker
-        that reads the images to vouch for (one line): a stretch one view
-        lost and that was found again along the other view's rays, where the
-        first shows it faintly. The self-check judges the whole backbone in
-        both views (:mod:`rig.bench.reconstruct` keeps the line as the
-        frame's note); where none runs, the frame is ``suspect`` with it
-        (:func:`rig.rundir.record_doubt`).
     alternative : FastReconstruction or None
         The same frame with the tip at the farther view's silhouette end,
         where the views' ends disagree by more than ``tip_triangulate_px``
@@ -305,7 +297,6 @@ class FastReconstruction:
     correspondence: str
     timings_ms: dict
     suspect_reason: object = None
-    unverified: object = None
     alternative: object = None
 
 
@@ -1011,8 +1002,7 @@ class FastReconstructor:
 
     def _agreeing(self, frames: dict, views: dict, sa_: _ViewSamples, sb_: _ViewSamples, n: str) -> tuple:
         """The samples of a pair whose tips disagree (view ``n`` ends short), after second tries, and why the
-        method cannot vouch for the shape (None: the tips now agree), and what it took on weaker evidence
-        (:attr:`FastReconstruction.unverified`, None: nothing): ``(sa_, sb_, reason, unverified)``.
+        method cannot vouch for the shape (None: the tips now agree): ``(sa_, sb_, reason)``.
 
         One view lost a faint stretch of tube before its tip: it is followed once more, more sensitively (kept
         where it then ends nearer the other's tip). If it still ends short, the other view may have bridged a
@@ -1041,19 +1031,13 @@ class FastReconstructor:
             found = self._found_again(frames, views, (sa_, sb_), m, starts)
             if found is not None:
                 return found
-        return (*_common_part(model, views, sa_, sb_, params), None)
+        return _common_part(model, views, sa_, sb_, params)
 
     def _found_again(self, frames: dict, views: dict, samples: tuple, n: str, starts: list):
         """The pair's samples with view ``n``'s lost stretch found along the other view's rays
         (:func:`_lost_stretch`) from the first of ``starts`` (view ``n``'s centerlines) it is found from,
-        ``views`` updated in place, the reason the frame is suspect (None: the tips now agree) and the line
-        that says what was found: ``(sa_, sb_, reason, unverified)``; None where it is found from none.
-
-        Where view ``n`` shows the tube faintly the method cannot vouch for the stretch itself; the self-check
-        can, reading both views' foreground and contrast along the whole backbone. Flagged here, the frames
-        of wide tuning seeds 2-5 so found were 18 good (max error <= 9.7 footprints) and 2 wrong, both of
-        which the self-check flags since it measures the longest stretch off the tube (wide-5-32 frames 0/2,
-        docs/envelope.md round 29)."""
+        ``views`` updated in place, and the reason the frame is suspect: ``(sa_, sb_, reason)``; None where
+        it is found from none."""
         model, params = self.model, self.params
         a, b = model.pair
         other = b if n == a else a
@@ -1066,15 +1050,15 @@ class FastReconstructor:
             smp = _view_samples(model, n, found, params.sample_step_px)
             sa_, sb_ = (smp, samples[1]) if n == a else (samples[0], smp)
             sa_, sb_, reason = _common_part(model, views, sa_, sb_, params)
-            return sa_, sb_, reason, (f"{n} lost {gained:.0f} px of the tube before its tip; found again along "
-                                      f"{other}'s rays, where {n} shows it faintly")
+            # The stretch found along the rays is where this view shows the tube faintly: not vouched for.
+            return sa_, sb_, reason or (f"{n} lost {gained:.0f} px of the tube before its tip; found again along "
+                                        f"{other}'s rays, where {n} shows it faintly")
         return None
 
     def _matched(self, frames: dict, views: dict, detail: dict) -> tuple:
         """The views' samples, after second tries where their tips disagree (:meth:`_agreeing`), matched and
-        triangulated (:func:`_matched_curve`), and the :meth:`_agreeing` reason (None: the tips agree) and
-        line on weaker evidence: ``(matched, reason, unverified)``; stage times (ms) into ``detail``: ``rays``,
-        ``retry``, ``match_fit``."""
+        triangulated (:func:`_matched_curve`), and the :meth:`_agreeing` reason (None: the tips agree):
+        ``(matched, reason)``; stage times (ms) into ``detail``: ``rays``, ``retry``, ``match_fit``."""
         model, params = self.model, self.params
         a, b = model.pair
         t = time.perf_counter()
@@ -1083,13 +1067,13 @@ class FastReconstructor:
         detail["rays"] = 1e3 * (lap - t)
         tol = 2.0 / float(model.rig[a].K[0, 0])  # ~2 px of epipolar angle
         n_short = _short_view(model, views, sa_, sb_, params)
-        reason = unverified = None
+        reason = None
         if n_short is not None:
-            sa_, sb_, reason, unverified = self._agreeing(frames, views, sa_, sb_, n_short)
+            sa_, sb_, reason = self._agreeing(frames, views, sa_, sb_, n_short)
             detail["retry"] = 1e3 * (time.perf_counter() - lap)
         m = _matched_curve(model, params, sa_, sb_, tol)
         detail["match_fit"] = 1e3 * (time.perf_counter() - lap)
-        return m, reason, unverified
+        return m, reason
 
     def __call__(self, frames: dict) -> FastReconstruction:
         """Reconstruct one frame pair.
@@ -1125,7 +1109,7 @@ class FastReconstructor:
             _check_tube_widths(name, model.views[name], params.min_tube_width_px)
         views = self._extract_views(frames, timings, detail)
         t = time.perf_counter()
-        m, doubt, unverified = self._matched(frames, views, detail)
+        m, doubt = self._matched(frames, views, detail)
         lap = time.perf_counter()
         s_tr = {n: _transition_s(views[n], model.views[n]) for n in model.pair}
         backbones = _backbone(model, params, views, m, s_tr)
@@ -1138,8 +1122,7 @@ class FastReconstructor:
         detail["reprojection"] = 1e3 * (time.perf_counter() - lap)
         timings["total"] = 1e3 * (time.perf_counter() - t_start)
         timings.update(detail)
-        out = [_reconstruction(model, views, m, s_tr, bb, reason, timings, why, unverified)
-               for bb, (reason, why) in zip(backbones, judged)]
+        out = [_reconstruction(model, views, m, s_tr, bb, reason, timings, why) for bb, (reason, why) in zip(backbones, judged)]
         return replace(out[0], alternative=out[1]) if len(out) > 1 else out[0]
 
     def _judged(self, views: dict, backbone: tuple, doubt: str | None) -> tuple:
@@ -1197,11 +1180,10 @@ def _off_centerline(model: FastModel, params: FastParams, views: dict, points: n
 
 
 def _reconstruction(model: FastModel, views: dict, m: _Matched, s_tr: dict, backbone: tuple, reason,
-                    timings: dict, doubt: str | None = None, unverified: str | None = None) -> FastReconstruction:
+                    timings: dict, doubt: str | None = None) -> FastReconstruction:
     """The :class:`FastReconstruction` of a pair: ``backbone`` = (points (n, 3) world mm, tip (3,) world mm,
     (transition_s_mm, transition_world_mm)), the jump check's ``reason`` (None: plausible), and why the method
-    cannot vouch for the shape (``doubt``; the order-matched fallback gives one of its own), and what it took on
-    weaker evidence (``unverified``)."""
+    cannot vouch for the shape (``doubt``; the order-matched fallback gives one of its own)."""
     points, tip, (transition_s, transition_world) = backbone
     pair = model.pair
     shapes = {n: model.views[n].shape for n in pair}
@@ -1224,7 +1206,6 @@ def _reconstruction(model: FastModel, views: dict, m: _Matched, s_tr: dict, back
         correspondence=m.how,
         timings_ms=timings,
         suspect_reason=doubt or (_ORDERED_REASON if m.how == "ordered-dp" else None),
-        unverified=unverified,
     )
 
 

@@ -628,21 +628,14 @@ def jump_record(result) -> dict:
     return {"jump_flag": flag, "jump_reason": getattr(result, "jump_reason", None) if flag else None}
 
 
-def record_doubt(rec: dict, result, checked: bool = False) -> None:
+def record_doubt(rec: dict, result) -> None:
     """Make a frame the method itself cannot vouch for (its ``suspect_reason``) ``suspect`` with that reason.
 
-    Only an ``ok`` record changes: a self-check's verdict, recorded first, keeps its reason. What the
-    method took on weaker evidence (its ``unverified`` line, e.g. a stretch found again along the other
-    view's rays) is the frame's ``note`` where the self-check judged the frame (``checked``), and a
-    doubt like the method's own where none did (a live run): never ``ok`` unvouched.
+    Only an ``ok`` record changes: a self-check's verdict, recorded first, keeps its reason.
     """
     own = getattr(result, "suspect_reason", None)
-    weak = getattr(result, "unverified", None)
-    if weak and checked:
-        rec.setdefault("note", str(weak))
-    doubt = own or (None if checked else weak)
-    if doubt and rec["status"] == "ok":
-        rec.update(status="suspect", reason=str(doubt))
+    if own and rec["status"] == "ok":
+        rec.update(status="suspect", reason=str(own))
 
 
 # ----------------------------------------------------------------------------- the writer

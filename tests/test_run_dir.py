@@ -455,23 +455,3 @@ def test_last_journal_record_reads_the_end(tmp_path, tail_bytes):
 def _journal(path, head, records):
     rundir.Journal(path, head, records).close()
     return path
-
-
-def test_a_line_on_weaker_evidence_is_a_note_where_checked_and_a_doubt_where_not():
-    """The fast method's stretch found again along the other view's rays (its ``unverified`` line): where
-    the self-check judged the frame the line is the frame's note and the check's verdict stands; where
-    none ran (live) the frame is ``suspect`` with it, never ``ok`` unvouched."""
-    line = "top lost 285 px of the tube before its tip; found again along side's rays, where top shows it faintly"
-    result = SimpleNamespace(suspect_reason=None, unverified=line)
-    checked = {"status": "ok", "reason": None}
-    rundir.record_doubt(checked, result, checked=True)
-    assert checked == {"status": "ok", "reason": None, "note": line}
-    flagged = {"status": "suspect", "reason": "side: 9 px of tube along the robot are not explained"}
-    rundir.record_doubt(flagged, result, checked=True)
-    assert flagged["reason"].startswith("side: 9 px") and flagged["note"] == line
-    unchecked = {"status": "ok", "reason": None}
-    rundir.record_doubt(unchecked, result)
-    assert unchecked == {"status": "suspect", "reason": line}
-    own = {"status": "ok", "reason": None}
-    rundir.record_doubt(own, SimpleNamespace(suspect_reason="the tube folds", unverified=line), checked=True)
-    assert own["status"] == "suspect" and own["reason"] == "the tube folds"
