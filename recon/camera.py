@@ -203,6 +203,11 @@ class Camera:
             The point (world frame, mm).
         direction_world : (3,) array
             The direction (world frame; any length but 0).
+
+        Returns
+        -------
+        float
+            In [0, 1]; 0 where the direction or the point's distance from the camera is 0.
         """
         p = self.world_to_camera(np.stack([np.asarray(point_world_mm, float), np.asarray(point_world_mm, float) + direction_world]))
         t, ray = p[1] - p[0], p[0]
