@@ -86,7 +86,7 @@ class SubvoxelParams:
 
 
 class _View:
-    """One camera's centerline pixels, for nearest-pixel queries."""
+    """One camera's centerline pixels, for nearest-pixel queries, and its silhouette where given (None: not given)."""
 
     def __init__(self, camera, centerline: np.ndarray, silhouette: np.ndarray | None = None):
         nz = cv2.findNonZero((np.asarray(centerline) > 0).astype(np.uint8))
