@@ -45,6 +45,7 @@ import cv2
 import numpy as np
 
 from .geometry import arc_length, points_at_arc_length, resample_polyline, transform_points
+from .morphology import near_mask
 from .paper import behind_base_pixels
 from .rigcal import RigCalibration
 
@@ -744,21 +745,6 @@ def _longest_run(mask: np.ndarray) -> int:
     return int(np.max(ends - starts)) if starts.size else 0
 
 
-def _near_foreground(fg: np.ndarray, uv: np.ndarray, tol_px: float) -> np.ndarray:
-    """(m,) bool: a foreground pixel lies within ``tol_px`` of each point (pixels of ``fg``)."""
-    r = int(math.floor(tol_px))
-    dv, du = np.mgrid[-r : r + 1, -r : r + 1]
-    keep = du**2 + dv**2 <= tol_px**2
-    du, dv = du[keep], dv[keep]
-    u = np.rint(uv[:, 0]).astype(np.int64)[:, None] + du[None, :]
-    v = np.rint(uv[:, 1]).astype(np.int64)[:, None] + dv[None, :]
-    h, w = fg.shape
-    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    hit = np.zeros(u.shape, bool)
-    hit[inside] = fg[v[inside], u[inside]]
-    return hit.any(axis=1)
-
-
 def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_out_px: np.ndarray, r_in_px: np.ndarray,
                      params: SelfCheckParams) -> tuple:
     """Signed distance (px) from each sample to the middle of the foreground run across it, and the run's width (px); NaN where unclean.
@@ -1236,7 +1222,7 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     unexplained = unexplained_px / (unexplained_px + none["visible_px"])
     # (b) is there foreground within the tolerance of each in-image sample?
     uvr = uvv - [x0, y0]
-    on = on_fg = _near_foreground(fg, uvr, params.on_foreground_tolerance_px)
+    on = on_fg = near_mask(fg, uvr, params.on_foreground_tolerance_px)
     normals = _normals(uv[finite])[vis[finite]]
     if params.contrast_window_px > 0 and not view.binary and not on.all():
         on = on | _contrast_support(view, gray, lighting, uvv, normals, r_out[vis], r_in[vis], params)

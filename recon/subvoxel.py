@@ -36,6 +36,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .geometry import arc_length, resample_polyline
+from .morphology import near_mask
 
 __all__ = ["SubvoxelParams", "refine_backbone"]
 
@@ -185,18 +186,6 @@ def _tip_reach_mm(view: _View, tip: np.ndarray, tangent: np.ndarray, max_mm: flo
     return float(np.clip((last - uv[0]) @ unit / speed, -max_mm, max_mm)), speed
 
 
-def _near_mask(mask: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """(m,) bool: ``mask`` is nonzero within the 3x3 pixels around each point ``uv`` (px; outside the image: False)."""
-    h, w = mask.shape
-    iu, iv = np.rint(uv[:, 0]).astype(np.int64), np.rint(uv[:, 1]).astype(np.int64)
-    near = np.zeros(len(uv), bool)
-    for dv in (-1, 0, 1):
-        for du in (-1, 0, 1):
-            ok = (iu + du >= 0) & (iu + du < w) & (iv + dv >= 0) & (iv + dv < h)
-            near[ok] |= mask[iv[ok] + dv, iu[ok] + du] > 0
-    return near
-
-
 def _silhouette_reach_mm(camera, silhouette: np.ndarray, tip: np.ndarray, tangent: np.ndarray, max_mm: float,
                          tip_radius_mm: float = 0.0) -> tuple:
     """Signed distance (mm along the 3-D tangent) from the tip to where the view's silhouette ends (NaN: no
@@ -215,7 +204,7 @@ def _silhouette_reach_mm(camera, silhouette: np.ndarray, tip: np.ndarray, tangen
         return np.nan, speed  # the tangent runs nearly along this camera's ray: the view cannot place the tip
     n = float(np.ceil(max_mm * speed)) + 3.0
     k = np.arange(-n, n + 0.25, 0.5)
-    on = _near_mask(silhouette, uv[0][None] + k[:, None] * (dir_px / speed)[None])
+    on = near_mask(silhouette, uv[0][None] + k[:, None] * (dir_px / speed)[None], 1.5)
     i0 = int(np.searchsorted(k, 0.0))
     if on[i0]:
         gap = ~on[i0 + 1:-1] & ~on[i0 + 2:]
