@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import arc_length, points_at_arc_length
+from .geometry import arc_length, interp_rows
 
 __all__ = ["JumpLimits", "jump_check", "shape_distance"]
 
@@ -53,10 +53,11 @@ def shape_distance(a: np.ndarray, b: np.ndarray, step_mm: float = 2.0) -> float:
     float
         The largest distance (mm) between ``a`` and ``b`` at the same arc length.
     """
-    s = np.arange(0.0, min(arc_length(a)[-1], arc_length(b)[-1]) + 1e-9, step_mm)
+    sa, sb = arc_length(a), arc_length(b)
+    s = np.arange(0.0, min(sa[-1], sb[-1]) + 1e-9, step_mm)
     if not s.size:
         return 0.0
-    return float(np.max(np.linalg.norm(points_at_arc_length(a, s) - points_at_arc_length(b, s), axis=1)))
+    return float(np.max(np.linalg.norm(interp_rows(s, sa, a) - interp_rows(s, sb, b), axis=1)))
 
 
 def jump_check(prev_points, prev_tip, points, tip, limits: JumpLimits = JumpLimits()) -> str | None:
