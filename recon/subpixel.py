@@ -70,6 +70,7 @@ from ._kernels import (
 )
 from .background import no_picture, to_gray
 from .errors import FrameError
+from .halflit import BASE_STRETCH, half_lit_moves, lit_side
 from .geometry import resample_arc
 
 __all__ = [
@@ -1767,73 +1768,28 @@ def _rim_lit_candidates(s, c, narrow, f, d, width, max_gap):
     return narrow[keep], before[keep], after[keep], near[keep], normal[keep]
 
 
-#: The first accepted cross-sections that tell which side of the tube a view lights (~48 px at the default step).
-_BASE_STRETCH = 24
-
-#: A cross-section narrower than this fraction of the tube's width shows one side of it only.
-HALF_LIT_FRACTION = 0.7
-
-
-def _lit_side(model: ViewModel, c: np.ndarray, d: np.ndarray, width: np.ndarray) -> tuple:
-    """Which side of the tube's axis the first centres ``c`` (k, 2, px; unit tangents ``d``, widths ``width``
-    px) lie on, where they show one side of the outer tube only, and which fraction of its width they show:
-    ``(side, fraction)``, side +1 or -1 along the normal ``(-d_y, d_x)``, or 0 where they do not tell.
-
-    The outer tube leaves the base along the robot's axis, whose image the rig gives (``model.base_px``,
-    ``model.axis_px``). A view that shows its highlight only (the shaded side as gray as the backdrop) reads a
-    narrow tube whose centres run parallel to that line, off it by half the width missing. It tells where
-    most of the stretch is narrower than :data:`HALF_LIT_FRACTION` of the tube (``2 * model.outer_radius_px``)
-    and those narrow centres, at least 1 px short of it on each side, run parallel to the axis (the offset
-    changing by no more than 0.02 px a px, scattered by no more than 0.5 px) 0.6-1.4 times half the missing
-    width off it. A tube that bends away from the axis does not run parallel to it, and a full one is not
-    narrow. (The cross-sections at the base itself can read full: the base's own edges.)
-    """
-    a = np.asarray(model.axis_px, np.float64)
-    a = a / np.linalg.norm(a)
-    full = 2.0 * model.outer_radius_px
-    narrow = (width < HALF_LIT_FRACTION * full) & (d @ a > 0.95)
-    if 2 * narrow.sum() < len(width):
-        return 0.0, 1.0
-    w0 = float(np.median(width[narrow]))
-    half = 0.5 * (full - w0)
-    rel = c[narrow] - np.asarray(model.base_px, np.float64)
-    off = rel @ np.array([-a[1], a[0]])  # the axis's normal: the first fit's tangents bend towards the base's own edges
-    slope, o0 = np.polyfit(rel @ a, off, 1)
-    resid = off - (slope * (rel @ a) + o0)
-    o = float(np.median(off))
-    if half < 1.0 or abs(slope) > 0.02 or float(np.std(resid)) > 0.5 or not 0.6 * half <= abs(o) <= 1.4 * half:
-        return 0.0, 1.0
-    return float(np.sign(o)), w0 / full
-
-
 def _half_lit_centres(model: ViewModel, c, ok, d, width) -> tuple:
     """Centres ``c`` (n, 2, px) and widths (px) with the cross-sections that show one side of the tube only
-    moved to its axis, where the stretch at the base tells which side is lit (:func:`_lit_side`).
+    moved to its axis, where the stretch at the base tells which side is lit (:mod:`recon.halflit`).
 
     :func:`_rim_lit_centres` mends narrow cross-sections between full ones. A view can show the highlight
     alone from the base on, or along all of the tube, and the centres then run off the axis by half the width
     missing (wide-2-34's side view: 3.3 px of a 10 px tube, 3.9 px off, the backbone 3.8 footprints off
-    and ``ok``). A cross-section narrower than :data:`HALF_LIT_FRACTION` of the running 80th percentile of
-    the widths (41 profiles), or of the thinnest tube (``2 * model.inner_radius_px``) where that is wider, is
-    taken to show the fraction of the tube that the base stretch shows: it takes the width that gives
-    (within 0.8 times the thinnest tube's and 1.2 times the outer one's) and moves by half the difference
-    away from the lit side, which is taken to be the base stretch's all along the view. ``ok``: the accepted
+    and ``ok``). The lit side is taken to be the base stretch's all along the view. ``ok``: the accepted
     cross-sections; ``d``: unit tangents (n, 2).
     """
     g = np.flatnonzero(ok)
-    if g.size < 2 * _BASE_STRETCH:
+    if g.size < 2 * BASE_STRETCH:
         return c, width
-    head = g[:_BASE_STRETCH]
-    side, fraction = _lit_side(model, c[head], d[head], width[head])
+    head = g[:BASE_STRETCH]
+    side, fraction = lit_side(model.base_px, model.axis_px, 2.0 * model.outer_radius_px, c[head], d[head], width[head])
     if side == 0.0:
         return c, width
-    thinnest = 2.0 * model.inner_radius_px
-    narrow = width[g] < HALF_LIT_FRACTION * np.maximum(thinnest, running_rank_nb(width[g], 41, 32))
+    narrow, full, move = half_lit_moves(width[g], fraction, 2.0 * model.inner_radius_px, 2.0 * model.outer_radius_px)
     i = g[narrow]
-    full = np.clip(width[i] / fraction, 0.8 * thinnest, 2.4 * model.outer_radius_px)
     c, width = c.copy(), width.copy()
-    c[i] -= (side * 0.5 * np.maximum(full - width[i], 0.0))[:, None] * np.c_[-d[i, 1], d[i, 0]]
-    width[i] = np.maximum(full, width[i])
+    c[i] -= (side * move)[:, None] * np.c_[-d[i, 1], d[i, 0]]
+    width[i] = full
     return c, width
 
 
