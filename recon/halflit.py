@@ -53,6 +53,8 @@ def lit_side(base_px, axis_px, full_px: float, c: np.ndarray, d: np.ndarray, wid
     The cross-sections at the base itself can read full (the base's own edges).
     """
     a = np.asarray(axis_px, np.float64)
+    if not np.linalg.norm(a) > 1e-9 or len(width) < 4:
+        return 0.0, 1.0  # the axis seen end on: no line to run parallel to
     a = a / np.linalg.norm(a)
     narrow = (width < HALF_LIT_FRACTION * full_px) & (d @ a > 0.95)
     if 2 * narrow.sum() < len(width):
@@ -60,9 +62,11 @@ def lit_side(base_px, axis_px, full_px: float, c: np.ndarray, d: np.ndarray, wid
     w0 = float(np.median(width[narrow]))
     half = 0.5 * (full_px - w0)
     rel = c[narrow] - np.asarray(base_px, np.float64)
-    off = rel @ np.array([-a[1], a[0]])  # the axis's normal: a fitted curve's tangents can bend towards the base's edges
-    slope, o0 = np.polyfit(rel @ a, off, 1)
-    resid = off - (slope * (rel @ a) + o0)
+    along, off = rel @ a, rel @ np.array([-a[1], a[0]])  # the axis's normal: fitted tangents can bend towards the base's edges
+    if np.ptp(along) < 4.0:
+        return 0.0, 1.0
+    slope, o0 = np.polyfit(along, off, 1)
+    resid = off - (slope * along + o0)
     o = float(np.median(off))
     if half < 1.0 or abs(slope) > 0.02 or float(np.std(resid)) > 0.5 or not 0.6 * half <= abs(o) <= 1.4 * half:
         return 0.0, 1.0
