@@ -29,7 +29,8 @@ _undistort_step_nb = njit(cache=True, nogil=True, inline="always")(distortion.un
 
 __all__ = ["profile_edges_nb", "profiles_at_seeds_nb", "profile_values_nb", "coarse_foreground_nb", "coarse_foreground_tiles_nb",
            "bfs_path_nb", "rays_nb", "ridge_hits_nb", "near_any_nb", "spline_fit_nb", "spline_basis_nb", "spline_eval_nb", "spline_robust_nb", "frame_coefficients_nb",
-           "frame_shift_nb", "tip_along_axis_nb", "project_nb", "running_rank_nb", "best_path_nb"]
+           "frame_shift_nb", "tip_along_axis_nb", "project_nb", "running_rank_nb", "median_nb", "max_window_median_nb",
+           "best_path_nb"]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -1323,6 +1324,47 @@ def running_rank_nb(x, size, rank):
         out[i] = buf[rank]
     return out
 
+
+
+@njit(cache=True, nogil=True)
+def median_nb(x):
+    """:func:`numpy.median` of a 1-D float64 array, the same value (the mean of the middle two for an even
+    count), compiled: about 1 us where NumPy's costs about 20 (wide suite's frames: a dozen medians of a few
+    tens of widths and distances per pair, 0.2 ms). NaN values are not allowed; an empty array gives NaN."""
+    if x.shape[0] == 0:
+        return np.nan
+    return np.median(x)
+
+
+@njit(cache=True, nogil=True)
+def max_window_median_nb(x, size):
+    """The largest median of the windows of ``size`` consecutive values of ``x`` (1-D float64): NumPy's
+    ``np.median(sliding_window_view(x, size), axis=1).max()``, the same value, compiled (about 80 us in NumPy
+    on a backbone's 200 distances). -inf where ``x`` is shorter than ``size``; NaN values are not allowed."""
+    n = x.shape[0]
+    if n < size:
+        return -np.inf
+    # The window kept sorted as it slides (as in running_rank_nb): one value leaves and one enters per step.
+    buf = np.sort(x[:size])
+    h = size // 2
+    best = buf[h] if size % 2 else (buf[h - 1] + buf[h]) / 2
+    for i in range(1, n - size + 1):
+        old = x[i - 1]
+        new = x[i + size - 1]
+        k = 0
+        while buf[k] != old:
+            k += 1
+        while k > 0 and buf[k - 1] > new:
+            buf[k] = buf[k - 1]
+            k -= 1
+        while k < size - 1 and buf[k + 1] < new:
+            buf[k] = buf[k + 1]
+            k += 1
+        buf[k] = new
+        m = buf[h] if size % 2 else (buf[h - 1] + buf[h]) / 2
+        if m > best:
+            best = m
+    return best
 
 @njit(cache=True, nogil=True)
 def best_path_nb(score, points, step_mm, start, stretch_cost, max_stretch):

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from ._kernels import polyline_distances_nb, project_nb, rays_nb
+from ._kernels import max_window_median_nb, median_nb, polyline_distances_nb, project_nb, rays_nb
 from .background import EigenBackground, EigenBackgroundParams, fit_eigenbackground, to_gray
 from .backbone import back_to_base_plane, back_to_border
 from .carving import rig_center
@@ -1172,7 +1172,7 @@ def _off_centerline(model: FastModel, params: FastParams, views: dict, points: n
         d = d[(seg > 0) & (seg < len(line) - 2)]
         if d.size < k:
             continue
-        worst = float(np.median(np.lib.stride_tricks.sliding_window_view(d, k), axis=1).max())
+        worst = float(max_window_median_nb(d, k))
         if worst > params.max_reprojection_px:
             return (f"{name}: the backbone leaves this view's centerline by {worst:.1f} px over "
                     f"{params.reprojection_window_mm:g} mm (limit {params.max_reprojection_px:g} px)")
@@ -1202,7 +1202,7 @@ def _reconstruction(model: FastModel, views: dict, m: _Matched, s_tr: dict, back
         n_voxels=0,
         jump_flag=reason is not None,
         jump_reason=reason,
-        ray_gap_mm=float(np.median(m.gap)),
+        ray_gap_mm=float(median_nb(np.asarray(m.gap, np.float64))),
         correspondence=m.how,
         timings_ms=timings,
         suspect_reason=doubt or (_ORDERED_REASON if m.how == "ordered-dp" else None),

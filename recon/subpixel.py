@@ -57,6 +57,7 @@ from ._kernels import (
     coarse_foreground_tiles_nb,
     frame_coefficients_nb,
     frame_shift_nb,
+    median_nb,
     near_any_nb,
     profile_values_nb,
     profiles_at_seeds_nb,
@@ -1470,7 +1471,7 @@ def _add_ridge_hits(model, frame, coeff, seeds, t, half, nav, threshold, wref, m
 class _Track:
     """What :func:`_follow_tube` knows so far: the centres found, those beyond a gap still to confirm, the misses."""
 
-    recent: np.ndarray  # (<= 6, 2) last centres found (px), for the predicted axis
+    recent: list  # the last <= 6 centres found ((2,) px each), for the predicted axis
     last_hit: np.ndarray  # (2,) last centre found (px)
     max_misses: int  # a run of this many misses ends the tube
     confirm: int  # hits beyond a gap that confirm it
@@ -1509,7 +1510,9 @@ class _Track:
         if not self.pending:
             self.widths.append(item[4])
             self.last_hit = item[0].copy()
-            self.recent = np.concatenate([self.recent, item[0][None]])[-6:]
+            # A list: an array concatenated on every hit cost ~3 us a hit, ~50 hits a pair.
+            self.recent.append(item[0])
+            del self.recent[:-6]
         return confirmed
 
     def miss(self) -> bool:
@@ -1583,12 +1586,12 @@ def _follow_tube(model, frame, coeff, p, t, s, half, threshold, wmin, wmax, step
     edge = 2.0
     p, t = np.asarray(p, np.float64), _unit(np.asarray(t, np.float64))
     seen = np.zeros((0, 2)) if visited is None else np.asarray(visited, np.float64)[::2]
-    tr = _Track(recent=p[None], last_hit=p.copy(), max_misses=max(2, int(np.floor(max_gap_px / step)) + 1), confirm=confirm)
+    tr = _Track(recent=[p], last_hit=p.copy(), max_misses=max(2, int(np.floor(max_gap_px / step)) + 1), confirm=confirm)
     grow = 1
     for _ in range(int((H + W) / (step * batch)) + 1):
         if len(tr.recent) >= 3:
             # Direction of the last centres (principal axis), oriented along the previous tangent.
-            ax = _principal_axis(tr.recent)
+            ax = _principal_axis(np.array(tr.recent))
             t = ax if ax @ t > 0 else -ax
         # While bridging a gap the prediction stays put: the rest of the gap (and the profiles that would
         # confirm a tube beyond it) in one batch.
@@ -1817,12 +1820,12 @@ def _off_axis_tail(fitter, s, c, ok, width, params) -> np.ndarray:
     g = np.flatnonzero(ok)
     if g.size < 16:
         return ok
-    diameter = float(np.median(width[g[-40:]]))
+    diameter = float(median_nb(width[g[-40:]]))
     in_tail = s[g] > s[g[-1]] - diameter
     tail, head = g[in_tail], g[~in_tail]
     if head.size < 8 or s[tail[0]] - s[head[-1]] > diameter:
         return ok
-    wide = width[tail] > _WIDE_TAIL * float(np.median(width[head[-20:]]))
+    wide = width[tail] > _WIDE_TAIL * float(median_nb(width[head[-20:]]))
     if not wide.any():
         return ok
     only_head = ok.copy()

@@ -790,6 +790,21 @@ def test_the_running_rank_kernel_is_scipys_rank_filter(size, rank):
         np.testing.assert_array_equal(_kernels.running_rank_nb(x, size, rank), rank_filter(x, rank, size=size, mode="nearest"))
 
 
+@pytest.mark.parametrize("size", [1, 2, 7, 8])
+def test_the_median_kernels_are_numpys(size):
+    """The compiled median and largest running median give NumPy's values exactly (the mean of the middle two for
+    an even count), on random, tied and constant series, odd and even lengths, shorter than the window too."""
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    rng = np.random.default_rng(size)
+    for n in (1, 2, size, size + 1, 40, 201):
+        for x in (rng.normal(size=n), np.round(rng.normal(size=n)), np.full(n, 3.0)):
+            assert _kernels.median_nb(x) == np.median(x)
+            want = np.median(sliding_window_view(x, size), axis=1).max() if n >= size else -np.inf
+            assert _kernels.max_window_median_nb(x, size) == want
+    assert np.isnan(_kernels.median_nb(np.zeros(0)))
+
+
 @pytest.mark.parametrize("side", [1.0, -1.0])
 def test_a_dark_patch_beside_the_tip_does_not_bend_the_tips_tangent(synthetic, monkeypatch, side):
     """A patch as dark as the tube beside its last mm (a shadow, a dark stretch of backdrop) widens the last
