@@ -52,6 +52,8 @@ import cv2
 import numpy as np
 
 from ._kernels import (
+    SHIFT_PATCH,
+    SHIFT_PATCH_BACK,
     bfs_path_nb,
     coarse_foreground_nb,
     coarse_foreground_tiles_nb,
@@ -204,6 +206,9 @@ class ViewModel:
     shift_design : (N, 6) float64
         Regressors there: mean, 1, x * mean, y * mean, -d mean/du, -d mean/dv.
     shift_gram : (6, 6) float64
+    shift_patches : (N, 8, 8) float32
+        The mean background around each of those pixels (from 3 px above and
+        left of it), for the shift's Gauss-Newton step.
     coarse_threshold : (Hc, Wc) float32
         Foreground threshold per coarse pixel (gray levels), learnt on
         :func:`coarse_abs_difference` (never below the absolute value of the
@@ -257,6 +262,7 @@ class ViewModel:
     shift_index: np.ndarray = None
     shift_design: np.ndarray = None
     shift_gram: np.ndarray = None
+    shift_patches: np.ndarray = None
     coarse_stack: np.ndarray = None
     start_px: np.ndarray = None
     start_search_px: float = 0.0
@@ -582,6 +588,14 @@ def _prepare_shift(model: ViewModel, mean_img: np.ndarray, sigma_pix: float, n: 
     object.__setattr__(model, "shift_index", idx.astype(np.int64))
     object.__setattr__(model, "shift_design", D)
     object.__setattr__(model, "shift_gram", G)
+    object.__setattr__(model, "shift_patches", _shift_patches(model.stack[:, 0].reshape(H, W), y, x))
+
+
+def _shift_patches(mean_f32: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(N, 8, 8) float32: ``mean_f32`` (the stack's mean, (H, W)) from ``SHIFT_PATCH_BACK`` px above and left of
+    each pixel ``(y, x)`` on (:func:`recon._kernels.frame_shift_nb`); the pixels lie over 4 px inside the image."""
+    r = np.arange(SHIFT_PATCH) - SHIFT_PATCH_BACK
+    return np.ascontiguousarray(mean_f32[(y[:, None] + r)[:, :, None], (x[:, None] + r)[:, None, :]], np.float32)
 
 
 def frame_shift(model: ViewModel, frame: np.ndarray, max_px: float = 3.0, iterations: int = 1) -> np.ndarray:
@@ -615,7 +629,7 @@ def frame_shift(model: ViewModel, frame: np.ndarray, max_px: float = 3.0, iterat
         return np.zeros(2)
     H, W = model.shape
     d = np.array(frame_shift_nb(frame.reshape(-1), model.stack[:, 0], W, H, model.shift_index, model.shift_design,
-                                model.shift_gram, iterations))
+                                model.shift_gram, iterations, model.shift_patches))
     if not np.all(np.isfinite(d)) or float(np.hypot(d[0], d[1])) > max_px:
         return np.zeros(2)
     return d

@@ -568,6 +568,20 @@ def test_frame_shift_and_coefficients_agree_with_their_oracles(paper_scene, pape
             np.testing.assert_allclose(frame_coefficients(vm, frame), O.frame_coefficients(vm, frame), rtol=1e-4, atol=1e-4)
 
 
+
+def test_the_shift_patches_hold_the_mean_background_around_each_pixel(paper_scene, paper_frames):
+    """The shift's Gauss-Newton step reads the mean background from a patch per pixel (in order: cheaper with
+    cold caches than the scattered stack); each patch is the stack's mean from 3 px above and left of its pixel."""
+    backgrounds, _ = paper_frames
+    model = prepare_fast(paper_scene.rig, backgrounds)
+    for vm in model.views.values():
+        H, W = vm.shape
+        mean = vm.stack[:, 0].reshape(H, W)
+        y, x = np.divmod(vm.shift_index, W)
+        assert vm.shift_patches.shape == (len(y), 8, 8)
+        for k in range(0, len(y), 97):
+            np.testing.assert_array_equal(vm.shift_patches[k], mean[y[k] - 3:y[k] + 5, x[k] - 3:x[k] + 5])
+
 def test_edge_kernel_agrees_with_its_oracle():
     """Random profiles (bands of either polarity, noise, none at all): the same edges, rims and refusals."""
     rng = np.random.default_rng(11)
