@@ -1352,7 +1352,18 @@ def running_rank_nb(x, size, rank):
 def median_nb(x):
     """:func:`numpy.median` of a 1-D float64 array, the same value (the mean of the middle two for an even
     count), compiled: about 1 us where NumPy's costs about 20 (wide suite's frames: a dozen medians of a few
-    tens of widths and distances per pair, 0.2 ms). NaN values are not allowed; an empty array gives NaN."""
+    tens of widths and distances per pair, 0.2 ms). NaN values are not allowed.
+
+    Parameters
+    ----------
+    x : (n,) float64 array
+        The values (any unit, e.g. px).
+
+    Returns
+    -------
+    float
+        Their median, in their unit; NaN for an empty array.
+    """
     if x.shape[0] == 0:
         return np.nan
     return np.median(x)
@@ -1362,7 +1373,20 @@ def median_nb(x):
 def max_window_median_nb(x, size):
     """The largest median of the windows of ``size`` consecutive values of ``x`` (1-D float64): NumPy's
     ``np.median(sliding_window_view(x, size), axis=1).max()``, the same value, compiled (about 80 us in NumPy
-    on a backbone's 200 distances). -inf where ``x`` is shorter than ``size``; NaN values are not allowed."""
+    on a backbone's 200 distances). NaN values are not allowed.
+
+    Parameters
+    ----------
+    x : (n,) float64 array
+        The values in order (any unit, e.g. px from a centerline along a backbone).
+    size : int
+        Window length (>= 1).
+
+    Returns
+    -------
+    float
+        The largest of the windows' medians, in the unit of ``x``; -inf where ``x`` is shorter than ``size``.
+    """
     n = x.shape[0]
     if n < size:
         return -np.inf
