@@ -1331,21 +1331,25 @@ def running_rank_nb(x, size, rank):
     buf.sort()
     out[0] = buf[rank]
     for i in range(1, n):
-        old = x[min(max(i - 1 - h, 0), n - 1)]
-        new = x[min(i + h, n - 1)]
-        k = 0
-        while buf[k] != old:
-            k += 1
-        while k > 0 and buf[k - 1] > new:
-            buf[k] = buf[k - 1]
-            k -= 1
-        while k < size - 1 and buf[k + 1] < new:
-            buf[k] = buf[k + 1]
-            k += 1
-        buf[k] = new
+        _replace_sorted(buf, x[min(max(i - 1 - h, 0), n - 1)], x[min(i + h, n - 1)])
         out[i] = buf[rank]
     return out
 
+
+@njit(cache=True, nogil=True, inline="always")
+def _replace_sorted(buf, old, new):
+    """Replace a value ``old`` of the sorted window ``buf`` by ``new``, keeping it sorted (O(len(buf)), no sort)."""
+    size = buf.shape[0]
+    k = 0
+    while buf[k] != old:
+        k += 1
+    while k > 0 and buf[k - 1] > new:
+        buf[k] = buf[k - 1]
+        k -= 1
+    while k < size - 1 and buf[k + 1] < new:
+        buf[k] = buf[k + 1]
+        k += 1
+    buf[k] = new
 
 
 @njit(cache=True, nogil=True)
@@ -1390,27 +1394,17 @@ def max_window_median_nb(x, size):
     n = x.shape[0]
     if n < size:
         return -np.inf
-    # The window kept sorted as it slides (as in running_rank_nb): one value leaves and one enters per step.
+    # The window kept sorted as it slides: one value leaves and one enters per step.
     buf = np.sort(x[:size])
     h = size // 2
     best = buf[h] if size % 2 else (buf[h - 1] + buf[h]) / 2
     for i in range(1, n - size + 1):
-        old = x[i - 1]
-        new = x[i + size - 1]
-        k = 0
-        while buf[k] != old:
-            k += 1
-        while k > 0 and buf[k - 1] > new:
-            buf[k] = buf[k - 1]
-            k -= 1
-        while k < size - 1 and buf[k + 1] < new:
-            buf[k] = buf[k + 1]
-            k += 1
-        buf[k] = new
+        _replace_sorted(buf, x[i - 1], x[i + size - 1])
         m = buf[h] if size % 2 else (buf[h - 1] + buf[h]) / 2
         if m > best:
             best = m
     return best
+
 
 @njit(cache=True, nogil=True)
 def best_path_nb(score, points, step_mm, start, stretch_cost, max_stretch):
