@@ -913,8 +913,12 @@ def _shift_normal_equations(f, keep, idx, mean_flat, W, H, du, dv, patches):
         row[5] = -((1 - fu) * (m10 - m00) + fu * (m11 - m01))
         for a in range(6):
             rr[a] += row[a] * f[i]
-            for b2 in range(6):
+            for b2 in range(a, 6):
                 GG[a, b2] += row[a] * row[b2]
+    # The lower triangle is the upper's: the same products, summed in the same order.
+    for a in range(1, 6):
+        for b2 in range(a):
+            GG[a, b2] = GG[b2, a]
     return GG, rr
 
 
