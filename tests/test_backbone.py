@@ -179,6 +179,20 @@ def test_back_to_border_stops_where_the_first_camera_loses_the_robot(paper_scene
     assert all((p - rig.base_point_world_mm) @ rig.insertion_axis_world >= -1e-9 for p in along_axis)
 
 
+def test_from_base_plane_cuts_a_start_behind_the_plane():
+    """A backbone starting behind the base plane starts on it, where it crosses; one in front is left alone."""
+    from recon.backbone import from_base_plane
+
+    base, axis = np.zeros(3), np.array([1.0, 0.0, 0.0])
+    x = np.linspace(-1.5, 10.0, 24)
+    pts = np.column_stack([x, 0.1 * x + 0.3, np.zeros_like(x)])
+    cut = from_base_plane(pts, base, axis)
+    np.testing.assert_allclose(cut[0], [0.0, 0.3, 0.0], atol=1e-12)  # on the plane, on the polyline
+    assert np.all(cut[1:, 0] > 0) and np.array_equal(cut[1:], pts[pts[:, 0] > 0])
+    assert np.array_equal(from_base_plane(pts[3:], base, axis), pts[3:])  # starts on the plane: as it is
+    assert np.array_equal(from_base_plane(pts - [20.0, 0, 0], base, axis), pts - [20.0, 0, 0])  # all behind: nothing to keep
+
+
 def test_back_to_base_plane():
     """Straight back along -t0 to the plane through the base across the axis; only when it points away from
     the plane and the gap is short."""
