@@ -1262,7 +1262,7 @@ def _footprints_mm(rig: RigCalibration, points_world_mm: np.ndarray) -> np.ndarr
 
 
 def _behind_base_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
-    """How far the backbone reaches behind the base plane: the largest distance from the base of a point on or behind it (pixel footprints).
+    """How far the backbone reaches behind the base plane: the largest distance from the base of a point behind it, or from the axis of one on it to within a footprint (pixel footprints).
 
     The robot leaves its base along the insertion axis: no backbone point can
     lie behind the plane through the base across the axis, and what does is off
@@ -1271,14 +1271,19 @@ def _behind_base_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
     the cameras' mean footprint at that point (mm per px, depth / focal length).
     """
     b = np.asarray(rig.base_point_world_mm, np.float64)
-    # On the plane counts too: a backbone continued back to the base plane ends there, and whether that
-    # point is behind it was up to rounding (wide-1-65 frame 1: 1.34 mm, 12 footprints, from the base).
-    pts = points_world_mm[(points_world_mm - b) @ np.asarray(rig.insertion_axis_world, np.float64) <= 1e-6]
-    if not len(pts):
-        return 0.0
-    fp = _footprints_mm(rig, pts)
+    fp = _footprints_mm(rig, points_world_mm)
     ok = np.isfinite(fp) & (fp > 0)
-    return float(np.max(np.linalg.norm(pts[ok] - b, axis=1) / fp[ok])) if ok.any() else 0.0
+    # On the plane counts too, to within a footprint: a backbone continued back to (or cut at) the base
+    # plane starts there, and whether that point is behind it is up to rounding and the sub-pixel
+    # refinement (wide-1-65 frame 1: 1.34 mm, 12 footprints, from the base). The tube leaves the base
+    # along the axis: a point that close in front of the plane is off the robot by its distance from the axis.
+    axis = np.asarray(rig.insertion_axis_world, np.float64)
+    h = (points_world_mm - b) @ axis
+    on = ok & (h <= 1e-6 + np.where(ok, fp, 0.0))
+    if not on.any():
+        return 0.0
+    off = points_world_mm[on] - b - np.maximum(h[on], 0.0)[:, None] * axis
+    return float(np.max(np.linalg.norm(off, axis=1) / fp[on]))
 
 
 def _kink_px(rig: RigCalibration, points_world_mm: np.ndarray, r_in_mm: float, params: SelfCheckParams) -> float:

@@ -465,6 +465,12 @@ def test_a_backbone_that_starts_behind_the_base_is_flagged(model, rendered):
     # On the plane itself, 2 mm aside (a continuation to the base plane that missed the base): the same.
     on_plane = np.concatenate([[base + 2.0 * aside], rendered.truth])
     assert _check(model, rendered, on_plane).figures["side"]["behind_base_px"] > SelfCheckParams().max_behind_base_px
+    # A hair in front of the plane (a tenth of a footprint: refinement rounding), 2 mm aside: still off
+    # the robot, which leaves its base along the axis; 3 footprints in front it is for the views to judge.
+    fp_mm = float(np.linalg.norm(base - rendered.rig["side"].center_world_mm)) / rendered.rig["side"].K[0, 0]
+    for ahead_fp, flagged in ((0.1, True), (3.0, False)):
+        start = np.concatenate([[base + ahead_fp * fp_mm * axis + 2.0 * aside], rendered.truth])
+        assert (_check(model, rendered, start).figures["side"]["behind_base_px"] > SelfCheckParams().max_behind_base_px) == flagged
 
 
 def _spiked(truth, s_mm, height_mm: float, half_width_mm: float):
