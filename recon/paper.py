@@ -593,7 +593,8 @@ def _continue_to_base(rig: RigCalibration, bb, max_gap_mm: float):
 
 
 def _from_base(rig: RigCalibration, bb):
-    """The backbone cut where it crosses the base plane (:func:`recon.backbone.from_base_plane`).
+    """The backbone cut where it crosses the base plane (:func:`recon.backbone.from_base_plane`), and how far
+    (mm) from the base the cut part reached (0 where nothing was cut).
 
     Carving keeps what lies within ``radius + 2`` px of the cut behind the
     base, and the refinement follows the centerlines' ends there: seeds 2-5
@@ -603,9 +604,42 @@ def _from_base(rig: RigCalibration, bb):
     """
     pts = from_base_plane(bb.points_mm, rig.base_point_world_mm, rig.insertion_axis_world)
     if len(pts) == len(bb.points_mm) and np.array_equal(pts, bb.points_mm):
-        return bb
+        return bb, 0.0
+    base = np.asarray(rig.base_point_world_mm, np.float64)
+    h = (bb.points_mm - base) @ np.asarray(rig.insertion_axis_world, np.float64)
+    lead = bb.points_mm[:int(np.argmax(h >= 0.0))]
     length_mm = float(arc_length(pts)[-1])
-    return replace(bb, points_mm=pts, length_mm=length_mm, transition_s_mm=bb.transition_s_mm - (bb.length_mm - length_mm))
+    bb = replace(bb, points_mm=pts, length_mm=length_mm, transition_s_mm=bb.transition_s_mm - (bb.length_mm - length_mm))
+    return bb, float(np.max(np.linalg.norm(lead - base, axis=1)))
+
+
+#: What a start behind the base plane is allowed, in voxel diagonals beyond the cut's margin (see
+#: :func:`_behind_base_doubt`).
+_BEHIND_BASE_VOXEL_DIAGONALS = 1.0
+
+
+def _behind_base_doubt(rig: RigCalibration, names, reached_mm: float, outer_radius_mm: float, voxel_size_mm):
+    """The doubt (str or None) on a backbone whose carved start reached ``reached_mm`` from the base, behind
+    its plane, before :func:`_from_base` cut it.
+
+    The images are cut ``radius + 2`` px behind the base (``cut_behind_base``), so the carving reaches up to
+    about the outer tube's radius plus 2 px (at the base, in the camera with the largest footprint) behind
+    the plane, rounded to the voxel grid: one voxel diagonal more. On seeds 2-5 of the wide suite the
+    starts reached at most 0.77 of that; a start beyond it was carved from something other than the tube's
+    end at the base, and the backbone after the cut cannot be vouched for (seed 6, wide-6-32 frame 1:
+    2.6 mm, 1.9 times the allowance, 46 px footprints off at the start and 21 at the tip).
+    """
+    if reached_mm <= 0.0:
+        return None
+    base = np.asarray(rig.base_point_world_mm, np.float64)[None]
+    footprint_mm = max(float(rig[n].world_to_camera(base)[0, 2]) / float(np.sqrt(rig[n].K[0, 0] * rig[n].K[1, 1]))
+                       for n in names)
+    diagonal_mm = float(np.linalg.norm(np.broadcast_to(np.asarray(voxel_size_mm, float), (3,))))
+    allowed_mm = outer_radius_mm + 2.0 * footprint_mm + _BEHIND_BASE_VOXEL_DIAGONALS * diagonal_mm
+    if reached_mm <= allowed_mm:
+        return None
+    return (f"the carved backbone started {reached_mm:.1f} mm from the base, behind its plane (more than the "
+            f"{allowed_mm:.1f} mm the cut behind the base and a voxel explain): cut there, not vouched for")
 
 
 #: A view's centerline within the outer tube's image radius plus this (px) of the reprojected
@@ -772,7 +806,8 @@ def base_borders(camera, base_point_world_mm) -> list:
 
 
 def _backbone(model: PaperModel, names, carved, silhouettes: dict, centerlines: dict, disks: dict, params: PaperParams):
-    """The carved voxels ordered into a backbone, continued to the base (plane or image border), refined.
+    """The carved voxels ordered into a backbone, continued to the base (plane or image border), refined, cut
+    at the base plane: ``(backbone, doubt)``, the doubt from :func:`_behind_base_doubt` (str or None).
 
     Raises :class:`~recon.errors.FrameError` when the backbone leaves out more
     than ``max_dropped_fraction`` of the voxels.
@@ -798,7 +833,8 @@ def _backbone(model: PaperModel, names, carved, silhouettes: dict, centerlines: 
         bb = _refined(cameras, [centerlines[n] for n in names], [disks[n] for n in names], bb, carved.voxel_size_mm, params, sils)
         bb = _straight_end(bb, carved.voxel_size_mm)
         bb = _trim_tip(cameras, sils, bb, 4.0 * voxel_mm)
-    return _from_base(model.rig, bb)
+    bb, reached_mm = _from_base(model.rig, bb)
+    return bb, _behind_base_doubt(model.rig, names, reached_mm, params.outer_tube_radius_mm, carved.voxel_size_mm)
 
 
 def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = PaperParams()) -> Reconstruction:
@@ -866,9 +902,10 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
         centerline_labels=[centerlines[n] for n in names],
     )
     lap("carve")
-    bb = _backbone(model, names, carved, silhouettes, centerlines, disks, params)
+    bb, base_doubt = _backbone(model, names, carved, silhouettes, centerlines, disks, params)
     lap("backbone")
     overrun, doubt = _tip_overrun(model, names, centerlines, bb.points_mm, params)
+    doubt = doubt or base_doubt
     lap("tip_check")
     timings["total"] = 1e3 * (time.perf_counter() - t_start)
     return Reconstruction(

@@ -75,3 +75,32 @@ def test_a_low_threshold_no_longer_joins_the_actuation_unit(dim_session):
     for im, truth in zip(s.frames, s.truths):
         r = rec(im)
         assert backbone_errors(r.points_world_mm, truth)["mean_error_mm"] <= float(np.max(r.voxel_size_mm))
+
+
+def test_a_start_behind_the_base_plane_is_cut_there_and_doubted_beyond_the_cut_margin(dim_session):
+    """The paper backbone starts on the base plane; a start carved from farther behind it than the cut
+    behind the base and a voxel explain leaves the frame not vouched for."""
+    from recon.backbone import ReconstructedBackbone
+    from recon.geometry import arc_length
+    from recon.paper import _behind_base_doubt, _from_base
+
+    s = dim_session
+    rig, truth = s.rig, s.truths[0]
+    base, axis = np.asarray(rig.base_point_world_mm, float), np.asarray(rig.insertion_axis_world, float)
+    aside = np.cross(axis, [0.0, 0.0, 1.0])
+    aside /= np.linalg.norm(aside)
+    voxel_mm, r_out_mm = 0.3, 0.8
+    doubts = []
+    for behind_mm in (0.5, 4.0):
+        hook = base - behind_mm * axis + 0.3 * aside
+        pts = np.concatenate([hook + np.linspace(0.0, 1.0, 5)[:-1, None] * (truth[1] - hook), truth[1:]])
+        length = float(arc_length(pts)[-1])
+        bb = ReconstructedBackbone(pts, pts[-1], np.nan, pts[-1], length, len(pts), 0)
+        cut, reached_mm = _from_base(rig, bb)
+        assert abs(float((cut.points_mm[0] - base) @ axis)) < 1e-9  # starts on the plane
+        assert np.all((cut.points_mm[1:] - base) @ axis > 0) and cut.length_mm < length
+        assert reached_mm == pytest.approx(np.hypot(behind_mm, 0.3))
+        doubts.append(_behind_base_doubt(rig, rig.names, reached_mm, r_out_mm, voxel_mm))
+    assert doubts[0] is None  # within the outer radius, 2 px and a voxel diagonal
+    assert doubts[1] is not None and "behind its plane" in doubts[1], doubts
+    assert _from_base(rig, replace(bb, points_mm=truth))[1] == 0.0  # nothing to cut
