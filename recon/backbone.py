@@ -177,8 +177,8 @@ def from_base_plane(points_mm, base_point_world_mm, insertion_axis_world) -> np.
     point, across the insertion axis); none of it lies behind. A backbone
     that starts behind the plane carries the carving's or the centerline's
     overshoot past the cut behind the base, off the robot by about its
-    distance from the plane (the paper method on the wide suite: 0.5-1.5 mm,
-    up to 13 px footprints, most of those frames' largest errors).
+    distance from the base (the paper method on the wide suite: up to 2.4 mm,
+    13 px footprints, most of those frames' largest errors).
 
     Parameters
     ----------

@@ -597,10 +597,10 @@ def _from_base(rig: RigCalibration, bb):
     (mm) from the base the cut part reached (0 where nothing was cut).
 
     Carving keeps what lies within ``radius + 2`` px of the cut behind the
-    base, and the refinement follows the centerlines' ends there: seeds 2-5
-    of the wide suite had backbones starting 0.3-1.5 mm behind the plane,
-    most in-view frames' largest errors (wide-2-9 frame 0: 9.7 -> 3.9 px
-    footprints once cut).
+    base, and the refinement follows the centerlines' ends there: on seeds
+    2-5 of the wide suite backbones started behind the plane, their first
+    points up to 2.4 mm from the base, most in-view frames' largest errors
+    (wide-2-9 frame 0: 9.7 -> 3.9 px footprints once cut).
     """
     pts = from_base_plane(bb.points_mm, rig.base_point_world_mm, rig.insertion_axis_world)
     if len(pts) == len(bb.points_mm) and np.array_equal(pts, bb.points_mm):
@@ -631,9 +631,7 @@ def _behind_base_doubt(rig: RigCalibration, names, reached_mm: float, outer_radi
     """
     if reached_mm <= 0.0:
         return None
-    base = np.asarray(rig.base_point_world_mm, np.float64)[None]
-    footprint_mm = max(float(rig[n].world_to_camera(base)[0, 2]) / float(np.sqrt(rig[n].K[0, 0] * rig[n].K[1, 1]))
-                       for n in names)
+    footprint_mm = max(rig[n].mm_per_pixel_at(rig.base_point_world_mm) for n in names)
     diagonal_mm = float(np.linalg.norm(np.broadcast_to(np.asarray(voxel_size_mm, float), (3,))))
     allowed_mm = outer_radius_mm + 2.0 * footprint_mm + _BEHIND_BASE_VOXEL_DIAGONALS * diagonal_mm
     if reached_mm <= allowed_mm:
