@@ -1093,12 +1093,14 @@ def _tip_figures(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.
     does not run.
     """
     # The end of the judged curve with nothing on it: a backbone that runs on beyond the tip
-    # (the share above hides a 20 px overrun of a long robot). Only where the foreground shows
-    # the tube just before (at least half of the 2 r_out px, >= 5 px): where it does not, the
-    # tube is too faint to tell where it ends from the foreground (the tip probe's case).
+    # (the share above hides a 20 px overrun of a long robot). Only where the foreground or the
+    # tube's contrast shows the tube just before (at least half of the 2 r_out px, >= 5 px): where
+    # neither does, the tube is too faint to tell where it ends (the tip probe's case). A faint tube
+    # that its contrast alone shows ends where that contrast ends (wide-3-48 frame 1 of the fast
+    # method: a side view followed 67 px of fabric on past the tip, 47 footprints, no foreground before).
     n_tail = int(np.argmax(on[::-1])) if on.any() else on.size
     n_pre = max(5, int(math.ceil(2.0 * float(r_out[vis][-1]) / params.sample_step_px)))
-    pre = on_fg[max(0, on.size - n_tail - n_pre):on.size - n_tail]
+    pre = on[max(0, on.size - n_tail - n_pre):on.size - n_tail]
     tip_off = n_tail * params.sample_step_px if pre.size and pre.mean() >= 0.5 else None
     beyond = None
     if face_share is not None:
@@ -1425,7 +1427,7 @@ FIGURE_LIMITS = {
     "unexplained_fraction": ("max_unexplained_fraction",
                              "{cam}: {pct:.0f} % of the foreground along the robot is not explained by the backbone (limit {pct_lim:.0f} %)"),
     "unexplained_px": ("max_unexplained_px", "{cam}: {x:.0f} px of tube along the robot are not explained by the backbone (limit {lim:.0f} px)"),
-    "tip_off_foreground_px": ("max_tip_off_foreground_px", "{cam}: the reprojected tube's last {x:.0f} px are not on foreground (limit {lim:.0f} px)"),
+    "tip_off_foreground_px": ("max_tip_off_foreground_px", "{cam}: the reprojected tube's last {x:.0f} px are on neither foreground nor tube contrast (limit {lim:.0f} px)"),
     "tip_overhang_px": ("max_tip_overhang_px", "{cam}: the tube's foreground runs on {x:.0f} px beyond the reprojected tip (limit {lim:.0f} px)"),
     "behind_base_px": ("max_behind_base_px", "the backbone reaches {x:.0f} px (pixel footprints) behind the robot base (limit {lim:.0f} px)"),
     "kink_px": ("max_kink_px", "the backbone bends {x:.0f} px (pixel footprints) more sharply than a tube can (limit {lim:.0f} px)"),
