@@ -1141,39 +1141,6 @@ def _tip_overhang_px(fg: np.ndarray, uv_roi: np.ndarray, r_in_tip: float, end_fa
     return max(0.0, run - end_face_px)
 
 
-#: Full-width cross-sections of the outermost tube that must lie beyond a narrow one (toward the tip): fewer
-#: could be a speck of clutter joined to the tube, not the tube.
-_FULL_OUTER_SECTIONS = 3
-
-#: How far (px) a narrow section's middle may lie beyond the half of the missing width: its edges are a
-#: threshold's, blurred by about a pixel.
-_ONE_SIDE_TOLERANCE_PX = 1.0
-
-
-def _one_side_of_outermost(offsets: np.ndarray, widths: np.ndarray, r_out_px: np.ndarray, r_in_px: np.ndarray,
-                           share: float) -> np.ndarray:
-    """(k,) bool: clean cross-sections (``offsets`` and ``widths`` px, NaN: unclean; ordered from the base) that
-    show one side of the outermost tube only.
-
-    Such a section is narrower than ``share`` of the tube's width ``2 r_out_px``, its middle lies no farther off
-    the reprojected axis than half the width it misses (plus :data:`_ONE_SIDE_TOLERANCE_PX`), and it is nearer
-    the base than :data:`_FULL_OUTER_SECTIONS` sections wider than ``r_out_px + r_in_px`` (nearer the outermost
-    tube's width than the innermost's). The outermost tube runs from the base, so a section nearer the base
-    than its full-width ones lies on it. A stretch of it half lit along its whole length reads as one narrow
-    tube, which the running median of the widths does not tell from a thinner tube (wide-2-4 frame 0 of the
-    fast method: its first 60 px 24-30 px wide where the tube is 46, the middles 8-10 px off a backbone within
-    4 footprints). Where the inner tube reads as wide as the outer one, the offset bound alone keeps a real
-    miss counted (wide-2-14 frame 2 of the paper method: 10-11 px off in sections 27-33 px of a 39 px tube).
-    """
-    full = np.flatnonzero(widths > r_out_px + r_in_px)
-    if full.size < _FULL_OUTER_SECTIONS:
-        return np.zeros(widths.shape, bool)
-    with np.errstate(invalid="ignore"):
-        narrow = widths < share * 2.0 * r_out_px
-        inside = np.abs(offsets) <= 0.5 * (2.0 * r_out_px - widths) + _ONE_SIDE_TOLERANCE_PX
-    return (np.arange(widths.size) < full[-_FULL_OUTER_SECTIONS]) & narrow & inside
-
-
 def _centerline_figures(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_out_px: np.ndarray, r_in_px: np.ndarray,
                         params: SelfCheckParams) -> tuple:
     """``(centerline_rms_px, centerline_max_px)`` of one view's judged samples (region coordinates), None where too few clean sections."""
@@ -1189,7 +1156,6 @@ def _centerline_figures(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray,
         n_win = max(1, int(round(params.section_width_window_px / (3 * params.sample_step_px))))
         idx = np.flatnonzero(good)
         good[idx[w < params.min_section_width_share * _running_median(w, min(n_win, w.size))]] = False
-        good &= ~_one_side_of_outermost(offs, widths, r_out_px[sub], r_in_px[sub], params.min_section_width_share)
     enough = good.sum() >= max(10.0, params.min_profile_fraction * offs.size)
     rms = float(np.sqrt(np.mean(offs[good] ** 2))) if enough else None
     # (c') the largest offset over a stretch: a bump where the method's centerline left the tube for
