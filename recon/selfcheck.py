@@ -1082,12 +1082,12 @@ def _unseen_share_of(camera, others, ys: np.ndarray, xs: np.ndarray, uvv: np.nda
 
 
 def _tip_figures(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.ndarray, finite: np.ndarray,
-                 vis: np.ndarray, on: np.ndarray, on_fg: np.ndarray, r_out: np.ndarray, r_in: np.ndarray,
+                 vis: np.ndarray, on: np.ndarray, r_out: np.ndarray, r_in: np.ndarray,
                  face_share: float | None, params: SelfCheckParams) -> tuple:
     """``(tip_off_foreground_px, beyond_tip_contrast)`` of one view, each None where not measured.
 
     ``uv`` the dense reprojection, ``finite`` and ``vis`` its finite and judged samples,
-    ``on`` / ``on_fg`` per judged sample: supported (foreground or contrast) / on foreground,
+    ``on`` per judged sample: supported (foreground or contrast),
     ``r_out`` / ``r_in`` the radii (px) per dense sample, ``face_share`` the end face's
     reach beyond the tip in tube radii (:func:`_end_face_share`), None where the tip probe
     does not run.
@@ -1224,7 +1224,7 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     unexplained = unexplained_px / (unexplained_px + none["visible_px"])
     # (b) is there foreground within the tolerance of each in-image sample?
     uvr = uvv - [x0, y0]
-    on = on_fg = near_mask(fg, uvr, params.on_foreground_tolerance_px)
+    on = near_mask(fg, uvr, params.on_foreground_tolerance_px)
     normals = _normals(uv[finite])[vis[finite]]
     if params.contrast_window_px > 0 and not view.binary and not on.all():
         on = on | _contrast_support(view, gray, lighting, uvv, normals, r_out[vis], r_in[vis], params)
@@ -1239,7 +1239,7 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     tip_seen = bool(vis[np.flatnonzero(finite)[-1]])
     face = _end_face_share(camera, points_world_mm, 2.0 * radii_mm[0]) if tip_seen else 0.0
     probe = tip_seen and params.tip_probe_px > 0 and not view.binary
-    tip_off, beyond = _tip_figures(view, gray, lighting, uv, finite, vis, on, on_fg, r_out, r_in, face if probe else None, params)
+    tip_off, beyond = _tip_figures(view, gray, lighting, uv, finite, vis, on, r_out, r_in, face if probe else None, params)
     r_in_tip = float(r_in[finite][-1])
     overhang = _tip_overhang_px(fg, uvr, r_in_tip, r_in_tip * face, params) if tip_seen and not probe else None
     if _DEBUG is not None:
