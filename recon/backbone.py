@@ -209,6 +209,65 @@ def from_base_plane(points_mm, base_point_world_mm, insertion_axis_world) -> np.
     return np.concatenate([(pts[k - 1] + a * (pts[k] - pts[k - 1]))[None], pts[k:]])
 
 
+#: Arc length (mm) from the backbone's first measured point over which :func:`from_base_point` joins it to
+#: the base: about the stretch a curl of the first centres spans (wide-2-0 frame 1, side view: ~20 px).
+BASE_JOIN_MM = 5.0
+
+
+def from_base_point(points_mm, base_point_world_mm, insertion_axis_world, step_mm: float,
+                    join_mm: float = BASE_JOIN_MM) -> tuple:
+    """The backbone started at the base point, along the insertion axis, joined to the measured curve.
+
+    The robot leaves its actuation unit at the base point along the insertion
+    axis: the rig says so. Near the unit the tube often shows faintly (its
+    shadow, the unit's edges beside it), the first centres wander by a few px
+    and a curve through them curls; continued straight back to the base plane
+    along its first tangent, the curl is amplified (wide-2-0 frame 1: 16 px
+    footprints at the base; wide-1-69 frame 1: 10 px). The first ``join_mm``
+    (at most a third of the curve) are replaced by the cubic Hermite curve
+    from the base point, tangent along the axis, to the measured point there,
+    tangent along the curve: a tube bent to a circle over that stretch is
+    followed within 0.2 um for a radius of 30 mm, 1.5 um for 15 mm.
+
+    Parameters
+    ----------
+    points_mm : (n, 3) array
+        The measured backbone (world, mm), base end first, starting in front
+        of the base plane.
+    base_point_world_mm : (3,) array
+        Where the robot leaves its actuation unit (world, mm).
+    insertion_axis_world : (3,) array
+        The insertion axis (world; any length), pointing along the robot.
+    step_mm : float
+        Largest spacing (mm) of the joining points.
+    join_mm : float, optional
+        Arc length (mm) of the measured curve replaced.
+
+    Returns
+    -------
+    points : (m, 3) float64 array
+        The backbone (world, mm) from the base point on.
+    added_mm : float
+        Arc length (mm) it gained before the measured point where the join ends
+        (the base end's shift in arc length, for curve parameters measured along
+        ``points_mm``).
+    """
+    pts = np.asarray(points_mm, np.float64)
+    s = arc_length(pts)
+    k = int(np.clip(np.searchsorted(s, min(join_mm, s[-1] / 3.0)), 1, len(pts) - 2))
+    p0 = np.asarray(base_point_world_mm, np.float64)
+    t0 = np.asarray(insertion_axis_world, np.float64)
+    t0 = t0 / np.linalg.norm(t0)
+    t1 = pts[k + 1] - pts[k - 1]
+    t1 = t1 / max(float(np.linalg.norm(t1)), 1e-12)
+    chord = float(np.linalg.norm(pts[k] - p0))
+    u = np.linspace(0.0, 1.0, max(4, int(np.ceil(2.0 * chord / step_mm))), endpoint=False)[:, None]
+    join = ((2 * u ** 3 - 3 * u ** 2 + 1) * p0 + (u ** 3 - 2 * u ** 2 + u) * chord * t0
+            + (3 * u ** 2 - 2 * u ** 3) * pts[k] + (u ** 3 - u ** 2) * chord * t1)
+    out = np.concatenate([join, pts[k:]])
+    return out, float(arc_length(out[: len(join) + 1])[-1] - s[k])
+
+
 def back_to_border(rig, names, x0_mm, t0, step_mm: float) -> np.ndarray:
     """Points continuing ``x0_mm`` straight back along ``-t0`` until one camera's image ends.
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from ._kernels import max_window_median_nb, median_nb, polyline_distances_nb, project_nb, rays_nb
 from .background import EigenBackground, EigenBackgroundParams, fit_eigenbackground, to_gray
-from .backbone import back_to_base_plane, back_to_border
+from .backbone import back_to_base_plane, back_to_border, from_base_point
 from .carving import rig_center
 from .distortion import undistort_normalized
 from .epipolar import EpipolarFrame, align_dp, conditioning, monotonic, triangulate_rays
@@ -562,14 +562,15 @@ def _draw_centerline(vc: ViewCenterline, shape, s_trans: float) -> np.ndarray:
 
 
 def _to_base(model: FastModel, params: FastParams, dense: np.ndarray, t0: np.ndarray, fine: float) -> tuple:
-    """The dense curve (world, mm) continued straight back along its start tangent ``t0`` to the base
-    plane (``max_base_gap_mm``), or, where the robot enters across the image border, to where the first
-    camera loses it; and the length (mm) added before the base plane (0 for the border)."""
+    """The dense curve (world, mm) started at the base point where it reaches the base plane within
+    ``max_base_gap_mm`` along its start tangent ``t0`` (:func:`recon.backbone.from_base_point`: the base is
+    in view), or, where the robot enters across the image border, continued straight back to where the
+    first camera loses it; and the arc length (mm) gained before the dense curve's points (0 for the border)."""
     rig = model.rig
     t0 = t0 / np.linalg.norm(t0)
     back = back_to_base_plane(dense[0], t0, rig.base_point_world_mm, rig.insertion_axis_world, params.max_base_gap_mm, fine)
     if len(back):
-        return np.concatenate([back, dense]), float(np.linalg.norm(back[0] - dense[0]))
+        return from_base_point(dense, rig.base_point_world_mm, rig.insertion_axis_world, fine)
     if any(model.views[n].start_px is not None for n in model.pair):
         # The profiles stop short of the border by about their window.
         return np.concatenate([back_to_border(rig, model.pair, dense[0], t0, fine), dense]), 0.0

@@ -209,3 +209,40 @@ def test_back_to_base_plane():
     assert len(back_to_base_plane(x0, t0, base, axis, 4.0, 0.5)) == 0  # 4.5 mm back: beyond the limit
     assert len(back_to_base_plane(x0, -t0, base, axis, 6.0, 0.5)) == 0  # pointing back towards the base
     assert len(back_to_base_plane(x0, np.array([0.2, 1.0, 0.0]), base, axis, 60.0, 0.5)) == 0  # nearly across the axis
+
+
+@pytest.mark.parametrize("radius_mm", [15.0, 30.0, 60.0])
+def test_from_base_point_keeps_a_tube_bent_from_its_base(radius_mm):
+    """A tube that leaves the base along the axis and bends to a circle: the join from the base point follows
+    that circle within 2 um, is C1 where it meets the measured curve, and the arc length it reports added is
+    what the join changed (~0 here)."""
+    from recon.backbone import from_base_point
+
+    th = np.linspace(0.0, 60.0 / radius_mm, 2400)
+    pts = np.column_stack([radius_mm * np.sin(th), radius_mm * (1.0 - np.cos(th)), np.zeros_like(th)])
+    out, added_mm = from_base_point(pts, pts[0], [2.0, 0.0, 0.0], 0.25)
+    assert np.abs(np.linalg.norm(out - [0.0, radius_mm, 0.0], axis=1) - radius_mm).max() < 2e-3
+    assert abs(added_mm) < 1e-3 and abs(arc_length(out)[-1] - arc_length(pts)[-1]) < 1e-3
+    assert np.linalg.norm(np.diff(out, axis=0), axis=1).max() < 0.25
+
+
+def test_from_base_point_replaces_a_curled_start():
+    """The first measured millimetres curl 1 mm off a straight tube (the first centres of a view wandered
+    where the tube shows faintly near its unit), and the curve starts 2 mm in front of the base plane:
+    continued straight back along its first tangent it would reach the plane 2 mm off the base point; the
+    join starts at the base point along the axis and meets the measured curve 5 mm on, where it is right."""
+    from recon.backbone import back_to_base_plane, from_base_point
+
+    base, axis = np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.0, 1.0])
+    s = np.linspace(2.0, 60.0, 581)
+    curl = np.clip(1.0 - (s - 2.0) / 2.0, 0.0, None)  # 1 mm at the first point, gone 2 mm on
+    pts = base + np.column_stack([curl, np.zeros_like(s), s])
+    straight = back_to_base_plane(pts[0], pts[1] - pts[0], base, axis, 6.0, 0.25)
+    assert np.linalg.norm(straight[0] - base) > 1.9  # the old way back lands 2 mm off
+    out, added_mm = from_base_point(pts, base, axis, 0.25)
+    np.testing.assert_allclose(out[0], base, atol=1e-12)
+    t_start = (out[1] - out[0]) / np.linalg.norm(out[1] - out[0])
+    assert t_start @ axis > 0.9999
+    assert np.hypot(out[:, 0] - base[0], out[:, 1] - base[1]).max() < 1e-9  # on the tube's axis all along
+    assert abs(added_mm - (arc_length(out)[-1] - arc_length(pts)[-1])) < 1e-9
+    np.testing.assert_array_equal(out[-500:], pts[-500:])  # beyond the join: the measured curve
