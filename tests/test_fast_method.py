@@ -423,9 +423,10 @@ def test_a_view_that_bridged_a_faint_stretch_keeps_its_bridge(synthetic, seed):
     it from 50 mm on at 3.5 % of its contrast (lost there). Followed again without bridging, the side view
     would end at its gap, short of the top view: so its bridged centerline is kept, and it is the top view
     whose lost stretch is looked for along the side view's rays, where it shows faintly: the backbone runs
-    to the tip, `suspect`. (Without the rule the side view fell back to its gap and the frame was refused:
-    'the views disagree on the tip: side's ends 267 px ...'. With candidates 2-4 mm apart on those rays the
-    stretch was not found: the backbone stopped at 50 mm, where both views see the tube.)"""
+    to the tip, and the method leaves it to the self-check to judge (no doubt of its own). (Without the rule
+    the side view fell back to its gap and the frame was refused: 'the views disagree on the tip: side's
+    ends 267 px ...'. With candidates 2-4 mm apart on those rays the stretch was not found: the backbone
+    stopped at 50 mm, where both views see the tube.)"""
     rig, backgrounds, _ = synthetic
     rng = np.random.default_rng(seed)
     s, pts, radii = robot_backbone()
@@ -436,8 +437,7 @@ def test_a_view_that_bridged_a_faint_stretch_keeps_its_bridge(synthetic, seed):
     faint = _along_tube(rig["top"], pts[s > 50.0], 28)
     frames["top"][faint] = plain["top"][faint] + 0.035 * (frames["top"][faint] - plain["top"][faint])
     r = prepare("fast", rig, backgrounds)({n: np.clip(f, 0, 255).astype(np.uint8) for n, f in frames.items()})
-    assert r.suspect_reason is not None and r.suspect_reason.startswith("top lost"), r.suspect_reason
-    assert "found again along side's rays" in r.suspect_reason, r.suspect_reason
+    assert r.suspect_reason is None, r.suspect_reason
     off_mm = point_to_polyline_distances(r.points_world_mm, pts)
     assert 78.0 < r.length_mm < 82.0 and off_mm.mean() < 0.1 and off_mm.max() < 0.5, (r.length_mm, off_mm.mean(), off_mm.max())
 
