@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from .backbone import BackboneParams, back_to_base_plane, back_to_border, from_base_plane, order_backbone
+from .backbone import BackboneParams, back_to_base_plane, back_to_border, from_base_plane, from_base_point, order_backbone
 from .background import EigenBackgroundParams, difference_image, fit_eigenbackground, to_gray
 from .carving import CarvingParams, bounding_box, carve
 from .centerline import CenterlineParams, centerline_params_for, extract_centerline
@@ -592,6 +592,23 @@ def _continue_to_base(rig: RigCalibration, bb, max_gap_mm: float):
                                                   rig.insertion_axis_world, max_gap_mm, step))
 
 
+def _started_at_base(rig: RigCalibration, bb, max_gap_mm: float):
+    """The backbone started at the base point, along the insertion axis (:func:`recon.backbone.from_base_point`),
+    where it starts on the base plane or at most ``max_gap_mm`` in front of it (the base in view).
+
+    The carved start is where the images' cut behind the base and the disks' ends leave it: continued
+    straight back along a 5 mm chord, or cut at the plane, it started up to 5-7 px footprints off the
+    base on ok frames of wide seeds 2 and 3 (wide-2-8 frame 0: 6.5 -> 1.9 px footprints, round 34).
+    """
+    pts = bb.points_mm
+    h = float((pts[0] - np.asarray(rig.base_point_world_mm, np.float64)) @ np.asarray(rig.insertion_axis_world, np.float64))
+    if len(pts) < 4 or not -1e-6 <= h <= max_gap_mm:
+        return bb
+    step = float(np.median(np.linalg.norm(np.diff(pts, axis=0), axis=1)))
+    new, added_mm = from_base_point(pts, rig.base_point_world_mm, rig.insertion_axis_world, step)
+    return replace(bb, points_mm=new, length_mm=float(arc_length(new)[-1]), transition_s_mm=bb.transition_s_mm + added_mm)
+
+
 def _from_base(rig: RigCalibration, bb):
     """The backbone cut where it crosses the base plane (:func:`recon.backbone.from_base_plane`), and how far
     (mm) from the base the cut part reached (0 where nothing was cut).
@@ -823,7 +840,8 @@ def _backbone(model: PaperModel, names, carved, silhouettes: dict, centerlines: 
         # half alone, 27 mm off).
         raise FrameError(f"the carved robot is in pieces the backbone cannot join: {bb.n_dropped} of {total} voxels "
                          f"({100.0 * bb.n_dropped / total:.0f} %) left out")
-    if any(base_borders(model.rig[n], model.rig.base_point_world_mm) for n in names):
+    border = any(base_borders(model.rig[n], model.rig.base_point_world_mm) for n in names)
+    if border:
         bb = _continue_to_border(model.rig, names, _straight_start(bb, carved.voxel_size_mm))
     else:
         bb = _continue_to_base(model.rig, bb, params.max_base_gap_mm)
@@ -832,6 +850,8 @@ def _backbone(model: PaperModel, names, carved, silhouettes: dict, centerlines: 
         bb = _straight_end(bb, carved.voxel_size_mm)
         bb = _trim_tip(cameras, sils, bb, 4.0 * voxel_mm)
     bb, reached_mm = _from_base(model.rig, bb)
+    if not border:
+        bb = _started_at_base(model.rig, bb, params.max_base_gap_mm)
     return bb, _behind_base_doubt(model.rig, names, reached_mm, params.outer_tube_radius_mm, carved.voxel_size_mm)
 
 

@@ -231,6 +231,24 @@ def test_a_start_curled_by_the_border_cut_is_put_back_on_the_tube():
     assert _straight_start(bent, 0.6) is bent
 
 
+
+def test_a_start_in_front_of_the_base_is_started_at_the_base_point():
+    """A carved start 0.8 mm aside of a straight tube, on the base plane: the backbone starts at the base point
+    along the insertion axis and is on the tube all along; its length and transition follow. A start beyond
+    ``max_gap_mm`` in front of the plane (the base not reached) is left as it is."""
+    from recon.paper import _started_at_base
+
+    from types import SimpleNamespace
+
+    rig = SimpleNamespace(base_point_world_mm=np.zeros(3), insertion_axis_world=np.array([1.0, 0.0, 0.0]))
+    curled = _backbone_along_x(lambda x: np.where(x < 2.0, 0.4 * (2.0 - x), 0.0))
+    out = _started_at_base(rig, curled, 6.0)
+    np.testing.assert_allclose(out.points_mm[0], [0.0, 0.0, 0.0], atol=1e-12)
+    assert np.abs(out.points_mm[:, 1:]).max() < 1e-9
+    assert out.length_mm == pytest.approx(40.0, abs=1e-6) and out.transition_s_mm == pytest.approx(curled.transition_s_mm - (curled.length_mm - 40.0), abs=1e-6)
+    ahead = replace(curled, points_mm=curled.points_mm + [8.0, 0.0, 0.0])
+    assert _started_at_base(rig, ahead, 6.0) is ahead
+
 def test_a_curl_across_thin_voxels_is_measured_against_their_width_across():
     """A 100^3 grid over a long, thin robot has voxels longer along the tube than across it: a 0.8 mm curl
     across the tube (y) is four voxels there and is straightened, though it is under the 1.2 mm edge along x.
