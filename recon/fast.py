@@ -12,8 +12,10 @@ their epipolar-plane angle (dynamic programming under the ordering constraint
 when that angle is not monotonic), matched rays are triangulated, and a
 weighted least-squares B-spline (weights from how well each match is
 conditioned) gives the backbone, resampled by arc length. The backbone is
-continued straight back to the base plane and forward to the tip measured in
-both views (allowing for the tube's end cap seen at an angle). The
+started at the base point along the insertion axis where the base is in view
+(or continued straight back to the image border where the robot enters across
+it) and continued forward to the tip measured in both views (allowing for the
+tube's end cap seen at an angle). The
 outer/inner transition is where the measured width steps down.
 
 Across frames (:mod:`recon.temporal`): each backbone is compared with the
@@ -1137,8 +1139,8 @@ class FastReconstructor:
 
 
 def _backbone(model: FastModel, params: FastParams, views: dict, m: _Matched, s_tr: dict) -> list:
-    """The matched curve ``m`` continued straight back to the base plane (or the border) and to the tip seen in
-    both views, resampled every ``output_step_mm``: a list of ``(points (n, 3) world mm, tip (3,) world mm,
+    """The matched curve ``m`` started at the base point (or continued straight back to the border,
+    :func:`_to_base`) and continued to the tip seen in both views, resampled every ``output_step_mm``: a list of ``(points (n, 3) world mm, tip (3,) world mm,
     (transition_s_mm, transition_world_mm))``, a second one with the tip at the farther view's end where the
     views disagree on it (:func:`_to_tip`; ``s_tr``: each view's curve parameter of the outer tube's end, px)."""
     a, b = model.pair

@@ -108,8 +108,9 @@ class PaperParams:
         the paper; 0 disables it.
     max_base_gap_mm : float
         A backbone that starts up to this far (mm) in front of the base plane
-        is continued straight back to it (not in the paper; as the fast
-        method's ``max_base_gap_mm``).
+        is continued straight back to it and then started at the base point
+        along the insertion axis (not in the paper; as the fast method's
+        ``max_base_gap_mm``).
     max_dropped_fraction : float
         The frame is refused (:class:`~recon.errors.FrameError`) when the
         backbone leaves out more than this fraction of the carved voxels:
