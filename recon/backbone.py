@@ -232,8 +232,8 @@ def from_base_point(points_mm, base_point_world_mm, insertion_axis_world, step_m
     Parameters
     ----------
     points_mm : (n, 3) array
-        The measured backbone (world, mm), base end first, starting in front
-        of the base plane.
+        The measured backbone (world, mm, n >= 3), base end first, starting
+        in front of the base plane.
     base_point_world_mm : (3,) array
         Where the robot leaves its actuation unit (world, mm).
     insertion_axis_world : (3,) array

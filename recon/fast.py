@@ -1140,9 +1140,10 @@ class FastReconstructor:
 
 def _backbone(model: FastModel, params: FastParams, views: dict, m: _Matched, s_tr: dict) -> list:
     """The matched curve ``m`` started at the base point (or continued straight back to the border,
-    :func:`_to_base`) and continued to the tip seen in both views, resampled every ``output_step_mm``: a list of ``(points (n, 3) world mm, tip (3,) world mm,
-    (transition_s_mm, transition_world_mm))``, a second one with the tip at the farther view's end where the
-    views disagree on it (:func:`_to_tip`; ``s_tr``: each view's curve parameter of the outer tube's end, px)."""
+    :func:`_to_base`) and continued to the tip seen in both views, resampled every ``output_step_mm``: a list
+    of ``(points (n, 3) world mm, tip (3,) world mm, (transition_s_mm, transition_world_mm))``, a second one
+    with the tip at the farther view's end where the views disagree on it (:func:`_to_tip`; ``s_tr``: each
+    view's curve parameter of the outer tube's end, px)."""
     a, b = model.pair
     q, spl = m.q, m.spline
     fine = 0.5 * params.output_step_mm
