@@ -47,7 +47,8 @@ from .guided import best_path, ray_candidates, ray_points, strongest_candidates,
 from .methods import Method, register_method
 from .paper import camera_order
 from .rigcal import RigCalibration
-from .subpixel import ViewCenterline, ViewModel, ViewParams, background_difference, extract_view, fit_curve, prepare_view
+from .subpixel import (ViewCenterline, ViewModel, ViewParams, background_difference, extract_view, fit_curve, off_curve,
+                       prepare_view)
 from .temporal import JumpLimits, jump_check
 
 __all__ = ["FastParams", "FastModel", "FastReconstruction", "prepare_fast", "FastReconstructor"]
@@ -861,10 +862,20 @@ def _guided_contrast(model: FastModel, vc: ViewCenterline, frame, n: str, pts_mm
 
 
 def _extended(vc: ViewCenterline, more_px: np.ndarray, radius_px: float, params: FastParams) -> ViewCenterline:
-    """A view's centerline with centres ``more_px`` (m, 2) px added beyond its end, its curve refitted."""
+    """A view's centerline with centres ``more_px`` (m, 2) px added beyond its end, its curve refitted.
+
+    Centres more than ``radius_px`` (and 4 robust sigmas) off the curve through the others are left out:
+    the search along the other view's rays can take a stretch of backdrop beside the faint tube on one ray,
+    and the curve refitted through it hooked off the tube (wide-1-49 frame 0, top view: 2 mm before the tip).
+    """
     s1 = vc.s_range[1]
     start = vc.curve(np.array([s1]))[0]
     s_more = s1 + np.cumsum(np.linalg.norm(np.diff(np.vstack([start, more_px]), axis=0), axis=1))
+    off = off_curve(np.concatenate([vc.s, s_more]), np.vstack([vc.points_px, more_px]), params.view.spline_knot_px,
+                    radius_px, params.view.outlier_sigma)[len(vc.s):]
+    if off.any() and not off.all():
+        more_px = more_px[~off]
+        s_more = s1 + np.cumsum(np.linalg.norm(np.diff(np.vstack([start, more_px]), axis=0), axis=1))
     s = np.concatenate([vc.s, s_more])
     pts = np.vstack([vc.points_px, more_px])
     curve = fit_curve(s, pts, params.view.spline_knot_px)

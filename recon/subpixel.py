@@ -1244,6 +1244,15 @@ def fit_curve(s: np.ndarray, y: np.ndarray, spacing: float, w=None, smoothing: f
     return UniformSpline(s0, h, n_int, coef)
 
 
+def off_curve(s: np.ndarray, y: np.ndarray, spacing: float, min_off: float, n_sigma: float) -> np.ndarray:
+    """Which points of ``y`` (n, 2) over increasing ``s`` (n,) lie off the penalized spline through the others:
+    fitted, points farther from the fit than ``max(n_sigma`` robust sigmas, ``min_off)`` (units of ``y``) rejected,
+    refitted (:meth:`_Fitter.robust`). Returns the (n,) bool mask of the rejected points."""
+    fitter = _Fitter(np.asarray(s, float), spacing)
+    _, ok = fitter.robust(np.asarray(y, float), np.ones(len(s), np.bool_), min_off, n_sigma)
+    return ~ok
+
+
 _PENALTIES: dict = {}
 
 

@@ -464,6 +464,37 @@ def test_a_curl_of_the_first_centres_does_not_move_the_base(synthetic, seed):
     first = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(r.points_world_mm, axis=0), axis=1))]) <= 5.0
     assert point_to_polyline_distances(r.points_world_mm[first], pts).max() < 0.1
 
+
+def test_a_centre_found_beside_the_tube_is_left_out_of_the_extended_curve():
+    """A view's centerline along a circle (radius 400 px) is extended by centres found along the other view's
+    rays; one of them lies 8 px beside the circle (backdrop taken on one ray). It is left out, and the refitted
+    curve stays within 0.5 px of the circle; without it the curve hooked towards that centre. Centres 0.3 px
+    off (noise) are all kept."""
+    from recon.fast import _extended
+    from recon.subpixel import ViewCenterline, fit_curve, off_curve
+
+    def on_circle(t):
+        return np.stack([400.0 * np.sin(t), 400.0 * (1.0 - np.cos(t))], axis=1)
+
+    t = np.linspace(0.0, 0.5, 101)
+    pts = on_circle(t)
+    s = 400.0 * t
+    curve = fit_curve(s, pts, 40.0)
+    vc = ViewCenterline(name="top", curve=curve, s_range=(0.0, float(s[-1])), points_px=pts, s=s,
+                        width_px=np.full(len(s), 8.0), end_px=pts[-1], end_s=float(s[-1]), tangent_end=np.array([1.0, 0.0]),
+                        n_profiles=len(s), n_rejected=0, coarse=None)
+    more = on_circle(np.linspace(0.51, 0.75, 25))
+    noisy = more + np.random.default_rng(0).normal(0.0, 0.3, more.shape)
+    assert not off_curve(np.arange(len(noisy)) * 4.0, noisy, 40.0, 3.0, 4.0).any()
+    bad = noisy.copy()
+    normal = bad[20] - [0.0, 400.0]
+    bad[20] += 8.0 * normal / np.linalg.norm(normal)
+    ext = _extended(vc, bad, 3.0, FastParams())
+    assert len(ext.points_px) == len(pts) + len(more) - 1
+    assert not np.any(np.all(np.isclose(ext.points_px, bad[20]), axis=1))
+    tt = np.linspace(0.0, ext.s_range[1], 400)
+    assert np.abs(np.linalg.norm(ext.curve(tt) - [0.0, 400.0], axis=1) - 400.0).max() < 0.5
+
 def test_coarse_difference_does_not_cancel_across_a_thin_tube(synthetic):
     """A 4 px band, dark at its rims and bright in its middle (a thin tube with a highlight), lying on the
     central 2x2 pixels of a row of coarse blocks: their differences from the background sum to ~0, their
