@@ -870,13 +870,15 @@ def _extended(vc: ViewCenterline, more_px: np.ndarray, radius_px: float, params:
     """
     s1 = vc.s_range[1]
     start = vc.curve(np.array([s1]))[0]
-    s_more = s1 + np.cumsum(np.linalg.norm(np.diff(np.vstack([start, more_px]), axis=0), axis=1))
-    off = off_curve(np.concatenate([vc.s, s_more]), np.vstack([vc.points_px, more_px]), params.view.spline_knot_px,
+
+    def s_of(more):  # curve parameters (px) of the added centres: chords on from the curve's end
+        return s1 + np.cumsum(np.linalg.norm(np.diff(np.vstack([start, more]), axis=0), axis=1))
+
+    off = off_curve(np.concatenate([vc.s, s_of(more_px)]), np.vstack([vc.points_px, more_px]), params.view.spline_knot_px,
                     radius_px, params.view.outlier_sigma)[len(vc.s):]
     if off.any() and not off.all():
         more_px = more_px[~off]
-        s_more = s1 + np.cumsum(np.linalg.norm(np.diff(np.vstack([start, more_px]), axis=0), axis=1))
-    s = np.concatenate([vc.s, s_more])
+    s = np.concatenate([vc.s, s_of(more_px)])
     pts = np.vstack([vc.points_px, more_px])
     curve = fit_curve(s, pts, params.view.spline_knot_px)
     tangent = curve.derivative()(s[-1:])[0]
