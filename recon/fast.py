@@ -864,7 +864,7 @@ def _guided_contrast(model: FastModel, vc: ViewCenterline, frame, n: str, pts_mm
 def _extended(vc: ViewCenterline, more_px: np.ndarray, radius_px: float, params: FastParams) -> ViewCenterline:
     """A view's centerline with centres ``more_px`` (m, 2) px added beyond its end, its curve refitted.
 
-    Centres more than ``radius_px`` (and 4 robust sigmas) off the curve through the others are left out:
+    Centres more than ``radius_px`` (and 4 MADs of the distances) off the curve through the others are left out:
     the search along the other view's rays can take a stretch of backdrop beside the faint tube on one ray,
     and the curve refitted through it hooked off the tube (wide-1-49 frame 0, top view: 2 mm before the tip).
     """
@@ -874,8 +874,8 @@ def _extended(vc: ViewCenterline, more_px: np.ndarray, radius_px: float, params:
     def s_of(more):  # curve parameters (px) of the added centres: chords on from the curve's end
         return s1 + np.cumsum(np.linalg.norm(np.diff(np.vstack([start, more]), axis=0), axis=1))
 
-    off = off_curve(np.concatenate([vc.s, s_of(more_px)]), np.vstack([vc.points_px, more_px]), params.view.spline_knot_px,
-                    radius_px, params.view.outlier_sigma)[len(vc.s):]
+    off = off_curve(np.concatenate([vc.s, s_of(more_px)]), np.vstack([vc.points_px, more_px]),
+                    params.view.spline_knot_px, radius_px, params.view.outlier_sigma)[len(vc.s):]
     if off.any() and not off.all():
         more_px = more_px[~off]
     s = np.concatenate([vc.s, s_of(more_px)])

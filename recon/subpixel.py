@@ -1245,9 +1245,30 @@ def fit_curve(s: np.ndarray, y: np.ndarray, spacing: float, w=None, smoothing: f
 
 
 def off_curve(s: np.ndarray, y: np.ndarray, spacing: float, min_off: float, n_sigma: float) -> np.ndarray:
-    """Which points of ``y`` (n, 2) over increasing ``s`` (n,) lie off the penalized spline through the others:
-    fitted, points farther from the fit than ``max(n_sigma`` robust sigmas, ``min_off)`` (units of ``y``) rejected,
-    refitted (:meth:`_Fitter.robust`). Returns the (n,) bool mask of the rejected points."""
+    """Which points lie off the penalized spline through the others.
+
+    The spline is fitted, points farther from it than ``max(n_sigma * MAD,
+    min_off)`` (MAD: the median absolute deviation of the distances) are
+    rejected and it is refitted (:meth:`_Fitter.robust`).
+
+    Parameters
+    ----------
+    s : (n,) array
+        Increasing curve parameters (e.g. px along a view's centerline).
+    y : (n, d) array
+        The points (e.g. image px).
+    spacing : float
+        Largest knot spacing, in the units of ``s``.
+    min_off : float
+        Distance from the fit (units of ``y``) below which no point is rejected.
+    n_sigma : float
+        Rejection threshold in MADs of the distances.
+
+    Returns
+    -------
+    (n,) bool array
+        True for the rejected points.
+    """
     fitter = _Fitter(np.asarray(s, float), spacing)
     _, ok = fitter.robust(np.asarray(y, float), np.ones(len(s), np.bool_), min_off, n_sigma)
     return ~ok
