@@ -185,8 +185,9 @@ class SelfCheckParams:
         The *tip overhang*: how far (px) the foreground runs on beyond the
         reprojected tip, within the innermost radius plus
         ``on_foreground_tolerance_px`` of the tip's tangent (taken over the
-        last ``tip_tangent_px``; a hook at the very end turns a shorter one
-        off the tube), until a gap of 2 px, less the end face's reach
+        last ``tip_tangent_px``, as the tip probe's at least; a hook or a
+        wiggle at the very end turns a shorter one off the tube), until a
+        gap of 2 px, less the end face's reach
         ``r_in |t . ray|``. It is the tip's shortfall in that view. The
         unexplained length misses it where a thin inner tube ends inside a
         band drawn with a thick outer tube's radius: the band's square end
@@ -884,7 +885,8 @@ def _beyond_tip(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv_curve
 
     Samples every px from ``tip_probe_start_px + end_face_px`` to that plus
     ``max(tip_probe_px, tip_probe_radii * r_out)`` beyond the tip along the
-    tip's tangent (taken over the last ``2 r_out`` px); their difference from
+    tip's tangent (taken over the last ``max(2 r_out, tip_tangent_px)`` px);
+    their difference from
     the background across the middle against beside
     (:func:`_contrast_profiles`): ``best_centre / max(contrast_min,
     tip_probe_ratio * mean_beside)``, ``best_centre`` the largest mean over
@@ -893,7 +895,11 @@ def _beyond_tip(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv_curve
     probe left the faint short tips of the wide suite silent); None when less than
     half of the probe is in the image.
     """
-    end = _tip_direction(uv_curve, max(2, int(math.ceil(2.0 * r_out_tip / params.sample_step_px))))
+    # The tangent over tip_tangent_px at least, as the overhang takes it: over the last few px the
+    # tangent of a backbone that wiggles or hooks at its end points off a thin tube, and the probe
+    # missed it (paper, wide-3-35 frame 1: 127 footprints short, the side view's tube plain beyond).
+    n_back = max(2.0 * r_out_tip, params.tip_tangent_px) / params.sample_step_px
+    end = _tip_direction(uv_curve, min(len(uv_curve) - 1, max(2, int(math.ceil(n_back)))))
     if end is None:
         return None
     tip, d = end

@@ -390,6 +390,34 @@ def test_a_tip_a_little_beyond_the_probe_start_short_is_flagged(model, rendered)
     assert _check(model, rendered, rendered.truth, images).ok
 
 
+def _hooked(points, rig, cam: str, length_mm: float, angle_deg: float):
+    """The backbone with its last ``length_mm`` turned by ``angle_deg`` about camera ``cam``'s ray through the turn:
+    a hook in that view's image."""
+    s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))]
+    k = int(np.searchsorted(s, s[-1] - length_mm))
+    ray = points[k] - rig[cam].center_world_mm
+    ray /= np.linalg.norm(ray)
+    K = np.array([[0.0, -ray[2], ray[1]], [ray[2], 0.0, -ray[0]], [-ray[1], ray[0], 0.0]])
+    a = np.radians(angle_deg)
+    R = np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * K @ K
+    out = points.copy()
+    out[k:] = points[k] + (points[k:] - points[k]) @ R.T
+    return out
+
+
+def test_the_tip_probe_reads_the_tube_beyond_a_hooked_end(model, rendered):
+    # A backbone whose last few px hook off the tube: the tangent over them points the probe off a thin
+    # tube (paper, wide-3-35 frame 1: 127 footprints short, reported ok). Taken over tip_tangent_px it
+    # follows the tube on. Here the hook is 1 mm (8 px) at 45 deg in the side view, 6 mm short of the tip.
+    images = _faint_inner_tube(rendered, 0.2)
+    hooked = _hooked(rendered.truth[rendered.s_mm <= rendered.s_mm[-1] - 6.0], rendered.rig, "side", 1.0, 45.0)
+    over_hook = SelfCheckParams(tip_tangent_px=1.0)  # the tangent over 2 r_out px (13 px here), the hook in it
+    over_tube = SelfCheckParams(tip_tangent_px=40.0)
+    side = {p: check_backbone(model, images, hooked, rendered.radii, p).figures["side"] for p in (over_hook, over_tube)}
+    assert side[over_hook]["beyond_tip_contrast"] < over_hook.max_beyond_tip_contrast, side
+    assert side[over_tube]["beyond_tip_contrast"] > 1.5 * over_tube.max_beyond_tip_contrast, side
+
+
 @pytest.mark.parametrize("masks", [False, True])
 def test_a_tip_cut_short_that_clings_to_the_band_is_flagged_by_the_overhang(rendered, masks):
     # 1.2 mm (10 footprints) off the tip: the inner tube beyond the band's square end reaches
