@@ -112,10 +112,12 @@ class SelfCheckParams:
     min_section_width_share, section_width_window_px : float
         A clean cross-section narrower than this share of the median width
         of the clean cross-sections over ``section_width_window_px`` of the
-        curve around it is left out of (c) and (c'): it covers one side of
-        the tube only (the other as bright as the backdrop), and its middle
-        lies off the axis by up to a radius. The robot's tubes differ in
-        width, so no fixed width (only ``1.5 r_in``) tells. 0: none left out.
+        curve around it, or of the largest such median from there on to the
+        tip (widths in outer radii at each point's depth: the tubes only get
+        thinner towards the tip), is left out of (c) and (c'): it covers one
+        side of the tube only (the other as bright as the backdrop), and its
+        middle lies off the axis by up to a radius. The robot's tubes differ
+        in width, so no fixed width (only ``1.5 r_in``) tells. 0: none left out.
     min_visible_px : float
         A view in which less than this length of the backbone (px) is in the
         image, in front of the base, is not judged.
@@ -1158,10 +1160,15 @@ def _centerline_figures(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray,
         # A run much narrower than its neighbours covers one side of the tube only (the other side as bright
         # as the backdrop): its middle is off the axis by up to a radius (wide-3-3 frame 2 of the fast
         # method, wood grain across a three-tube robot: 2.5 px RMS, the backbone 0.9 footprints off).
-        w = widths[good]
-        n_win = max(1, int(round(params.section_width_window_px / (3 * params.sample_step_px))))
+        # Against the widest stretch from there on to the tip, too: the tubes only get thinner towards the
+        # tip, so a stretch narrower than one nearer the tip covers part of the tube, however long it is
+        # (wide-2-4: the outer tube's shaded half as dark as the backdrop over its first 84 px, both
+        # methods' backbones flagged 10.4 px off its middle). Widths in outer radii: depth changes them.
         idx = np.flatnonzero(good)
-        good[idx[w < params.min_section_width_share * _running_median(w, min(n_win, w.size))]] = False
+        w = widths[good] / r_out_px[sub][good]
+        n_win = max(1, int(round(params.section_width_window_px / (3 * params.sample_step_px))))
+        local = _running_median(w, min(n_win, w.size))
+        good[idx[w < params.min_section_width_share * np.maximum.accumulate(local[::-1])[::-1]]] = False
     enough = good.sum() >= max(10.0, params.min_profile_fraction * offs.size)
     rms = float(np.sqrt(np.mean(offs[good] ** 2))) if enough else None
     # (c') the largest offset over a stretch: a bump where the method's centerline left the tube for

@@ -644,3 +644,40 @@ def test_cross_sections_of_one_side_of_the_tube_are_left_out_of_the_centerline_f
     assert _centerline_figures(fg, uv, normals, r_out, r_in, every)[0] > every.max_centerline_rms_px
     shifted = _centerline_figures(np.roll(fg, 5, axis=0), uv, normals, r_out, r_in, p)
     assert shifted[0] > p.max_centerline_rms_px and shifted[1] > 4.0, shifted
+
+
+def test_a_long_stretch_of_one_side_of_the_tube_at_the_base_is_left_out_of_the_centerline_figures():
+    # wide-2-4 (both methods): the outer tube's shaded half as dark as the backdrop over its first 84 px,
+    # longer than the window the neighbours' widths are taken over: the runs there covered its lit half,
+    # their middles 8-10 px off the axis, and good backbones were flagged 10.4 px off. Tubes only get
+    # thinner towards the tip: a stretch narrower than one nearer the tip is partial, however long.
+    from recon.selfcheck import _centerline_figures
+
+    yy, xx = np.mgrid[0:100, 0:400]
+    fg = (np.abs(yy - 50) <= 10) & ~((xx < 140) & (yy > 50))  # the lower half missing over the first 120 px
+    uv = np.stack([np.arange(20.0, 380.0), np.full(360, 50.0)], axis=1)
+    normals = np.tile([0.0, 1.0], (360, 1))
+    r_out, r_in = np.full(360, 10.0), np.full(360, 5.0)
+    p = SelfCheckParams()
+    rms, local = _centerline_figures(fg, uv, normals, r_out, r_in, p)
+    assert rms < 0.5 and local < 0.5, (rms, local)
+    shifted = _centerline_figures(np.roll(fg, 5, axis=0), uv, normals, r_out, r_in, p)
+    assert shifted[0] > p.max_centerline_rms_px and shifted[1] > 4.0, shifted
+
+
+def test_the_inner_tube_beyond_a_wider_outer_tube_keeps_its_centerline_figures():
+    # The outer tube's width does not leave the inner tube's full sections out: only a wider stretch nearer
+    # the tip does. An inner tube (radius 5) 5 px off the backbone beyond an outer one (radius 10) on it.
+    from recon.selfcheck import _centerline_figures
+
+    yy, xx = np.mgrid[0:100, 0:400]
+    outer = (xx < 200) & (np.abs(yy - 50) <= 10)
+    inner = (xx >= 200) & (np.abs(yy - 55) <= 5)
+    uv = np.stack([np.arange(20.0, 380.0), np.full(360, 50.0)], axis=1)
+    normals = np.tile([0.0, 1.0], (360, 1))
+    r_out, r_in = np.full(360, 10.0), np.full(360, 5.0)
+    p = SelfCheckParams()
+    rms, local = _centerline_figures(outer | inner, uv, normals, r_out, r_in, p)
+    assert local > 4.5 and rms > 3.0, (rms, local)
+    on_axis = _centerline_figures(outer | np.roll(inner, -5, axis=0), uv, normals, r_out, r_in, p)
+    assert on_axis[0] < 0.5 and on_axis[1] < 0.5, on_axis
