@@ -272,6 +272,16 @@ class FastReconstruction:
     suspect_reason : str or None
         Why the method itself cannot vouch for this shape (the frame is
         reported ``suspect``), e.g. a tube folding across an epipolar plane.
+    check_answers_doubt : bool
+        Whether ``suspect_reason`` is a doubt that an image check answers:
+        the views' ends disagreed, and the backbone was cut to what both
+        views see (:func:`_common_part`). Either view may have been the
+        wrong one; where the longer view was right, its tube beyond the cut
+        is foreground that the backbone leaves unexplained, or contrast that
+        the tip probe reads (:mod:`recon.selfcheck`). A checker that passes
+        the frame lifts the doubt (:func:`rig.rundir.record_doubt`); live,
+        with no check, the frame stays suspect. False where another doubt
+        stands (the order-matched fallback, a stretch off a centerline).
     alternative : FastReconstruction or None
         The same frame with the tip at the farther view's silhouette end,
         where the views' ends disagree by more than ``tip_triangulate_px``
@@ -300,6 +310,7 @@ class FastReconstruction:
     correspondence: str
     timings_ms: dict
     suspect_reason: object = None
+    check_answers_doubt: bool = False
     alternative: object = None
 
 
@@ -1138,17 +1149,21 @@ class FastReconstructor:
         detail["reprojection"] = 1e3 * (time.perf_counter() - lap)
         timings["total"] = 1e3 * (time.perf_counter() - t_start)
         timings.update(detail)
-        out = [_reconstruction(model, views, m, s_tr, bb, reason, timings, why) for bb, (reason, why) in zip(backbones, judged)]
+        out = [_reconstruction(model, views, m, s_tr, bb, reason, timings, why, answerable)
+               for bb, (reason, why, answerable) in zip(backbones, judged)]
         return replace(out[0], alternative=out[1]) if len(out) > 1 else out[0]
 
     def _judged(self, views: dict, backbone: tuple, doubt: str | None) -> tuple:
-        """``(jump reason, doubt)`` of a backbone ``(points, tip, transition)``: the jump check against the
-        previous frame's backbone and why the method cannot vouch for it (``doubt``, or the reprojection's)."""
+        """``(jump reason, doubt, answerable)`` of a backbone ``(points, tip, transition)``: the jump check
+        against the previous frame's backbone, why the method cannot vouch for it (``doubt``: the views'
+        disagreement on the tip, or the reprojection's), and whether that is the tips' doubt alone, which
+        an image check answers (:attr:`FastReconstruction.check_answers_doubt`)."""
         points, tip, _ = backbone
         reason = None
         if self._prev is not None:
             reason = jump_check(self._prev[0], self._prev[1], points, tip, self.params.jump)
-        return reason, doubt or _off_centerline(self.model, self.params, views, points)
+        off = _off_centerline(self.model, self.params, views, points)
+        return reason, doubt or off, doubt is not None and off is None
 
 
 def _backbone(model: FastModel, params: FastParams, views: dict, m: _Matched, s_tr: dict) -> list:
@@ -1197,10 +1212,11 @@ def _off_centerline(model: FastModel, params: FastParams, views: dict, points: n
 
 
 def _reconstruction(model: FastModel, views: dict, m: _Matched, s_tr: dict, backbone: tuple, reason,
-                    timings: dict, doubt: str | None = None) -> FastReconstruction:
+                    timings: dict, doubt: str | None = None, answerable: bool = False) -> FastReconstruction:
     """The :class:`FastReconstruction` of a pair: ``backbone`` = (points (n, 3) world mm, tip (3,) world mm,
-    (transition_s_mm, transition_world_mm)), the jump check's ``reason`` (None: plausible), and why the method
-    cannot vouch for the shape (``doubt``; the order-matched fallback gives one of its own)."""
+    (transition_s_mm, transition_world_mm)), the jump check's ``reason`` (None: plausible), why the method
+    cannot vouch for the shape (``doubt``; the order-matched fallback gives one of its own), and whether an
+    image check answers that doubt (``answerable``, not where the fallback's stands too)."""
     points, tip, (transition_s, transition_world) = backbone
     pair = model.pair
     shapes = {n: model.views[n].shape for n in pair}
@@ -1223,6 +1239,7 @@ def _reconstruction(model: FastModel, views: dict, m: _Matched, s_tr: dict, back
         correspondence=m.how,
         timings_ms=timings,
         suspect_reason=doubt or (_ORDERED_REASON if m.how == "ordered-dp" else None),
+        check_answers_doubt=bool(answerable and doubt and m.how != "ordered-dp"),
     )
 
 

@@ -628,13 +628,21 @@ def jump_record(result) -> dict:
     return {"jump_flag": flag, "jump_reason": getattr(result, "jump_reason", None) if flag else None}
 
 
-def record_doubt(rec: dict, result) -> None:
+def record_doubt(rec: dict, result, checked: bool = False) -> None:
     """Make a frame the method itself cannot vouch for (its ``suspect_reason``) ``suspect`` with that reason.
 
     Only an ``ok`` record changes: a self-check's verdict, recorded first, keeps its reason.
+    A doubt that the method says an image check answers (its ``check_answers_doubt``, e.g.
+    the fast method's tips cut to what both views see) is lifted where the frame was
+    ``checked`` and passed: the record keeps it as ``doubt_answered``. Unchecked (live, or a
+    bench run with ``--no-selfcheck``) every doubt makes the frame suspect.
     """
     own = getattr(result, "suspect_reason", None)
-    if own and rec["status"] == "ok":
+    if not own or rec["status"] != "ok":
+        return
+    if checked and getattr(result, "check_answers_doubt", False):
+        rec["doubt_answered"] = str(own)
+    else:
         rec.update(status="suspect", reason=str(own))
 
 

@@ -341,6 +341,42 @@ def test_reconstruct_session_marks_a_wrong_frame_suspect(rendered, tmp_path, mon
     assert [r["status"] for r in off["per_frame"]] == ["ok", "ok"] and "selfcheck" not in off["per_frame"][1]
 
 
+def test_a_doubt_the_self_check_answers_is_lifted_where_it_passes_and_only_there(rendered, tmp_path, monkeypatch):
+    # The fast method cuts a backbone to what both views see where their ends disagree: either view may be
+    # wrong, and the images tell (check_answers_doubt). Checked and passed, the frame is ok with the doubt
+    # kept as doubt_answered; a wrong one keeps the self-check's reason; unchecked, every doubt is suspect.
+    from recon.methods import METHODS, Method
+    from rig.bench.reconstruct import reconstruct_session
+    from rig.session import SessionWriter
+
+    session = tmp_path / "session"
+    with SessionWriter(session, rendered.rig, "twin", n_tubes=2) as w:
+        for i in range(N_BACKGROUND):
+            w.add_background(i, {c: rendered.background[c][i] for c in rendered.rig.names})
+        for i in range(2):
+            w.add_frame(i, rendered.frame.images, t_s=float(i), truth={"backbone_world_mm": rendered.truth})
+    doubt = "the views disagree on the tip: the backbone stops where both views see the tube"
+
+    def prepare(answerable):
+        def prep(rig, background_frames, params):
+            calls = iter([rendered.truth, _wrong_end(rendered.truth)])  # frame 0 right, frame 1 wrong
+            return lambda frames: SimpleNamespace(
+                points_world_mm=(p := next(calls)), tip_world_mm=p[-1], length_mm=float("nan"),
+                transition_s_mm=float("nan"), timings_ms={"total": 1.0}, suspect_reason=doubt,
+                check_answers_doubt=answerable)
+        return prep
+
+    for name, answerable in (("answered", True), ("unanswered", False)):
+        monkeypatch.setitem(METHODS, name, Method(name, _WrongParams, prepare(answerable), "test: doubts every frame"))
+    right, wrong = reconstruct_session(session, tmp_path / "answered", method="answered")["per_frame"]
+    assert (right["status"], right["reason"], right["doubt_answered"]) == ("ok", None, doubt), right
+    assert wrong["status"] == "suspect" and wrong["reason"] == wrong["selfcheck"]["reason"] != doubt, wrong
+    unchecked = reconstruct_session(session, tmp_path / "unchecked", method="answered", selfcheck=None)["per_frame"]
+    assert [(r["status"], r["reason"]) for r in unchecked] == [("suspect", doubt)] * 2
+    other = reconstruct_session(session, tmp_path / "unanswered", method="unanswered")["per_frame"]
+    assert (other[0]["status"], other[0]["reason"]) == ("suspect", doubt) and "doubt_answered" not in other[0]
+
+
 def _faint_inner_tube(rendered, k: float):
     """The frame with the inner tube's difference from the background scaled by k (a tube as bright as the backdrop).
 

@@ -149,7 +149,7 @@ def checked_result(rec: dict, result, check_model, images: dict, radii_mm, param
         trial = dict(rec)
         alt_pts = _backbone_points(alt)
         selfcheck_record(trial, check_model, images, alt_pts, radii_mm, params)
-        record_doubt(trial, alt)
+        record_doubt(trial, alt, checked=True)
         if trial["status"] == "ok":
             rec.update(trial, reading="alternative")
             return alt, alt_pts
@@ -219,7 +219,7 @@ def _reconstruct_and_judge(rec: dict, session: Session, index: int, reconstruct,
     else:
         pts = _backbone_points(result)
     rec.update(jump_record(result))  # the fast method's temporal check: recorded, the status stays the self-check's
-    record_doubt(rec, result)  # the method's own doubt, where the check passed
+    record_doubt(rec, result, checked=check_model is not None)  # the method's own doubt, where the check passed
     rec.update(describe_result(result, pts))
     _score(rec, session, index, pts)
     return pts
