@@ -120,8 +120,9 @@ class SelfCheckParams:
         curve around it, or of the largest such median of the sections
         centred on the backbone (within ``on_foreground_tolerance_px``) from
         there on to the tip (widths in outer radii at each point's depth: the
-        tubes only get thinner towards the tip), is left out of (c) and
-        (c'): it covers one
+        tubes only get thinner towards the tip) where the run reaches that
+        section's edge (within ``on_foreground_tolerance_px`` + 1 px), is
+        left out of (c) and (c'): it covers one
         side of the tube only (the other as bright as the backdrop), and its
         middle lies off the axis by up to a radius. The robot's tubes differ
         in width, so no fixed width (only ``1.5 r_in``) tells. 0: none left out.
@@ -1172,17 +1173,23 @@ def _centerline_figures(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray,
         # (wide-2-4: the outer tube's shaded half as dark as the backdrop over its first 84 px, both
         # methods' backbones flagged 10.4 px off its middle). Only stretches centred on the backbone set
         # that width: a run merged with clutter is wide and off centre (wide-5-25 frame 0 of the paper
-        # method: 84 px of them at the tip). Widths in outer radii: depth changes them.
+        # method: 84 px of them at the tip). And only a run that reaches the edge of a section of that
+        # width centred on the backbone is a side of it: a narrower run inside is measured (a thinner
+        # tube off the backbone; left out, wide-6-43 frame 1 of the fast method lost the figure that
+        # flagged it). Widths in outer radii: depth changes them.
         idx = np.flatnonzero(good)
         w = widths[good] / r_out_px[sub][good]
         n_win = max(1, int(round(params.section_width_window_px / (3 * params.sample_step_px))))
-        ref = _running_median(w, min(n_win, w.size))
+        narrow = w < params.min_section_width_share * _running_median(w, min(n_win, w.size))
         centred = np.flatnonzero(np.abs(offs[good]) <= params.on_foreground_tolerance_px)
         if centred.size:
             tipward = np.maximum.accumulate(_running_median(w[centred], min(n_win, centred.size))[::-1])[::-1]
             after = np.searchsorted(centred, np.arange(w.size))  # the first centred section at or after each
-            ref = np.maximum(ref, np.where(after < centred.size, tipward[np.minimum(after, centred.size - 1)], 0.0))
-        good[idx[w < params.min_section_width_share * ref]] = False
+            ref = np.where(after < centred.size, tipward[np.minimum(after, centred.size - 1)], 0.0)
+            reach = np.abs(offs[good]) + 0.5 * widths[good]  # the run's far edge from the sample (px)
+            side = np.abs(reach - 0.5 * ref * r_out_px[sub][good]) <= params.on_foreground_tolerance_px + 1.0
+            narrow |= (w < params.min_section_width_share * ref) & side
+        good[idx[narrow]] = False
     enough = good.sum() >= max(10.0, params.min_profile_fraction * offs.size)
     rms = float(np.sqrt(np.mean(offs[good] ** 2))) if enough else None
     # (c') the largest offset over a stretch: a bump where the method's centerline left the tube for

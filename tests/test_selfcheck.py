@@ -716,6 +716,21 @@ def test_a_long_stretch_of_one_side_of_the_tube_at_the_base_is_left_out_of_the_c
     assert shifted[0] > p.max_centerline_rms_px and shifted[1] > 4.0, shifted
 
 
+def test_a_narrower_run_inside_the_tube_that_does_not_reach_its_edge_is_measured():
+    # A run narrower than the sections nearer the tip is one side of the tube only where it reaches the edge
+    # of such a section centred on the backbone; a run inside it is a thinner tube (or the backbone off it)
+    # and stays measured (wide-6-43 frame 1 of the fast method: left out, the frame lost the figure that
+    # flagged it). Here 8 px of foreground 3.5 px off the backbone before a centred tube of radius 10.
+    from recon.selfcheck import _centerline_figures
+
+    yy, xx = np.mgrid[0:100, 0:400]
+    fg = ((xx >= 200) & (np.abs(yy - 50) <= 10)) | ((xx < 200) & (yy >= 50) & (yy <= 57))
+    uv = np.stack([np.arange(20.0, 380.0), np.full(360, 50.0)], axis=1)
+    normals = np.tile([0.0, 1.0], (360, 1))
+    rms, local = _centerline_figures(fg, uv, normals, np.full(360, 10.0), np.full(360, 4.0), SelfCheckParams())
+    assert rms > 2.0 and local > 3.0, (rms, local)
+
+
 def test_the_inner_tube_beyond_a_wider_outer_tube_keeps_its_centerline_figures():
     # The outer tube's width does not leave the inner tube's full sections out: only a wider stretch nearer
     # the tip does. An inner tube (radius 5) 5 px off the backbone beyond an outer one (radius 10) on it.
