@@ -890,10 +890,12 @@ def _tip_direction(uv_curve: np.ndarray, n_back: int) -> tuple | None:
 
 
 def _beyond_tip(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv_curve: np.ndarray, r_out_tip: float,
-                r_in_tip: float, params: SelfCheckParams, end_face_px: float = 0.0) -> float | None:
+                r_in_tip: float, params: SelfCheckParams, end_face_px: float = 0.0, across: float = 1.0) -> float | None:
     """Tube contrast on the backbone's continuation beyond its reprojected tip, over what would flag it (> 1: the tube goes on).
 
-    Samples every px from ``tip_probe_start_px + end_face_px`` to that plus
+    Samples every px from ``tip_probe_start_px * across + end_face_px``
+    (``across``: the tip tangent's sine to the viewing ray, the image length
+    of a footprint along the tube there) to that plus
     ``max(tip_probe_px, tip_probe_radii * r_out)`` beyond the tip along the
     tip's tangent (taken over the last ``max(2 r_out, tip_tangent_px)`` px);
     their difference from
@@ -913,7 +915,9 @@ def _beyond_tip(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv_curve
     if end is None:
         return None
     tip, d = end
-    start = params.tip_probe_start_px + end_face_px
+    # The start is 8 footprints short along the tube, 8 |sin| px in this view: a tube pointing partly at the
+    # camera shows a tip 14 footprints short as 8 px (paper, wide-3-6 frame 2, top view: reported ok).
+    start = params.tip_probe_start_px * across + end_face_px
     dist = np.arange(start, start + max(params.tip_probe_px, params.tip_probe_radii * r_out_tip) + 1e-9, 1.0)
     pts = tip[None, :] + dist[:, None] * d[None, :]
     h, w = gray.shape
@@ -1122,7 +1126,8 @@ def _tip_figures(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.
     if face_share is not None:
         # The tip itself is in view (not behind the base): does the tube go on beyond it?
         r_tip = float(r_out[finite][-1])
-        beyond = _beyond_tip(view, gray, lighting, uv[finite], r_tip, float(r_in[finite][-1]), params, r_tip * face_share)
+        beyond = _beyond_tip(view, gray, lighting, uv[finite], r_tip, float(r_in[finite][-1]), params, r_tip * face_share,
+                             math.sqrt(max(0.0, 1.0 - face_share ** 2)))
     return tip_off, beyond
 
 
