@@ -296,17 +296,23 @@ class _WrongParams:
     inner_tube_radius_mm: float = 0.5
 
 
-def test_reconstruct_session_marks_a_wrong_frame_suspect(rendered, tmp_path, monkeypatch):
-    from recon.methods import METHODS, Method
-    from rig.bench.reconstruct import format_table, reconstruct_session
+def _two_frame_session(rendered, session):
+    """A session directory of the rendered frame twice (frames 0 and 1), its background frames and its truth."""
     from rig.session import SessionWriter
 
-    session = tmp_path / "session"
     with SessionWriter(session, rendered.rig, "twin", n_tubes=2) as w:
         for i in range(N_BACKGROUND):
             w.add_background(i, {c: rendered.background[c][i] for c in rendered.rig.names})
         for i in range(2):
             w.add_frame(i, rendered.frame.images, t_s=float(i), truth={"backbone_world_mm": rendered.truth})
+    return session
+
+
+def test_reconstruct_session_marks_a_wrong_frame_suspect(rendered, tmp_path, monkeypatch):
+    from recon.methods import METHODS, Method
+    from rig.bench.reconstruct import format_table, reconstruct_session
+
+    session = _two_frame_session(rendered, tmp_path / "session")
     answers = [rendered.truth, _wrong_end(rendered.truth)]  # frame 0 right, frame 1 wrong
 
     def prepare(rig, background_frames, params):
@@ -362,14 +368,8 @@ def test_a_doubt_the_self_check_answers_is_lifted_where_it_passes_and_only_there
     # kept as doubt_answered; a wrong one keeps the self-check's reason; unchecked, every doubt is suspect.
     from recon.methods import METHODS, Method
     from rig.bench.reconstruct import reconstruct_session
-    from rig.session import SessionWriter
 
-    session = tmp_path / "session"
-    with SessionWriter(session, rendered.rig, "twin", n_tubes=2) as w:
-        for i in range(N_BACKGROUND):
-            w.add_background(i, {c: rendered.background[c][i] for c in rendered.rig.names})
-        for i in range(2):
-            w.add_frame(i, rendered.frame.images, t_s=float(i), truth={"backbone_world_mm": rendered.truth})
+    session = _two_frame_session(rendered, tmp_path / "session")
     doubt = "the views disagree on the tip: the backbone stops where both views see the tube"
 
     def prepare(answerable):
@@ -696,26 +696,30 @@ def test_a_stretch_whose_depth_no_view_measures_is_flagged():
     assert "unmeasured_depth_mm" in FIGURE_LIMITS
 
 
+def _figures_along_x(fg, r_in_px: float = 5.0, params: SelfCheckParams = SelfCheckParams()) -> tuple:
+    """``(centerline_rms_px, centerline_max_px)`` of a backbone along y = 50 px, x = 20-379, outer radius 10 px,
+    against a 100 x 400 foreground ``fg``."""
+    from recon.selfcheck import _centerline_figures
+
+    uv = np.stack([np.arange(20.0, 380.0), np.full(360, 50.0)], axis=1)
+    return _centerline_figures(fg, uv, np.tile([0.0, 1.0], (360, 1)), np.full(360, 10.0), np.full(360, r_in_px), params)
+
+
 def test_cross_sections_of_one_side_of_the_tube_are_left_out_of_the_centerline_figures():
     # wide-3-3 frame 2 (fast): across wood grain the foreground covers one side of a three-tube robot's outer
     # tube over stretches; those runs are wider than 1.5 innermost radii, their middles 5-8 px off the axis:
     # 2.5 px RMS for a backbone 0.9 footprints off. A tube of radius 10 px along y = 50, the foreground its upper
     # 10 of 21 px only over 21 of every 63 px: left out, the figures read the axis; shifted by 5 px, still flagged.
-    from recon.selfcheck import _centerline_figures
-
     yy, xx = np.mgrid[0:100, 0:400]
     tube = np.abs(yy - 50) <= 10
     one_side = ((xx % 63) < 21) & (yy >= 50)
     fg = tube & ~one_side
-    uv = np.stack([np.arange(20.0, 380.0), np.full(360, 50.0)], axis=1)
-    normals = np.tile([0.0, 1.0], (360, 1))
-    r_out, r_in = np.full(360, 10.0), np.full(360, 5.0)
     p = SelfCheckParams()
-    rms, local = _centerline_figures(fg, uv, normals, r_out, r_in, p)
+    rms, local = _figures_along_x(fg)
     assert rms < 0.5 and local < 0.5, (rms, local)
     every = SelfCheckParams(min_section_width_share=0.0)
-    assert _centerline_figures(fg, uv, normals, r_out, r_in, every)[0] > every.max_centerline_rms_px
-    shifted = _centerline_figures(np.roll(fg, 5, axis=0), uv, normals, r_out, r_in, p)
+    assert _figures_along_x(fg, params=every)[0] > every.max_centerline_rms_px
+    shifted = _figures_along_x(np.roll(fg, 5, axis=0))
     assert shifted[0] > p.max_centerline_rms_px and shifted[1] > 4.0, shifted
 
 
@@ -724,18 +728,12 @@ def test_a_long_stretch_of_one_side_of_the_tube_at_the_base_is_left_out_of_the_c
     # longer than the window the neighbours' widths are taken over: the runs there covered its lit half,
     # their middles 8-10 px off the axis, and good backbones were flagged 10.4 px off. Tubes only get
     # thinner towards the tip: a stretch narrower than one nearer the tip is partial, however long.
-    from recon.selfcheck import _centerline_figures
-
     yy, xx = np.mgrid[0:100, 0:400]
     fg = (np.abs(yy - 50) <= 10) & ~((xx < 140) & (yy > 50))  # the lower half missing over the first 120 px
-    uv = np.stack([np.arange(20.0, 380.0), np.full(360, 50.0)], axis=1)
-    normals = np.tile([0.0, 1.0], (360, 1))
-    r_out, r_in = np.full(360, 10.0), np.full(360, 5.0)
-    p = SelfCheckParams()
-    rms, local = _centerline_figures(fg, uv, normals, r_out, r_in, p)
+    rms, local = _figures_along_x(fg)
     assert rms < 0.5 and local < 0.5, (rms, local)
-    shifted = _centerline_figures(np.roll(fg, 5, axis=0), uv, normals, r_out, r_in, p)
-    assert shifted[0] > p.max_centerline_rms_px and shifted[1] > 4.0, shifted
+    shifted = _figures_along_x(np.roll(fg, 5, axis=0))
+    assert shifted[0] > SelfCheckParams().max_centerline_rms_px and shifted[1] > 4.0, shifted
 
 
 def test_a_narrower_run_inside_the_tube_that_does_not_reach_its_edge_is_measured():
@@ -743,35 +741,26 @@ def test_a_narrower_run_inside_the_tube_that_does_not_reach_its_edge_is_measured
     # of such a section centred on the backbone; a run inside it is a thinner tube (or the backbone off it)
     # and stays measured (wide-6-43 frame 1 of the fast method: left out, the frame lost the figure that
     # flagged it). Here 8 px of foreground 3.5 px off the backbone before a centred tube of radius 10.
-    from recon.selfcheck import _centerline_figures
-
     yy, xx = np.mgrid[0:100, 0:400]
     fg = ((xx >= 200) & (np.abs(yy - 50) <= 10)) | ((xx < 200) & (yy >= 50) & (yy <= 57))
-    uv = np.stack([np.arange(20.0, 380.0), np.full(360, 50.0)], axis=1)
-    normals = np.tile([0.0, 1.0], (360, 1))
-    rms, local = _centerline_figures(fg, uv, normals, np.full(360, 10.0), np.full(360, 4.0), SelfCheckParams())
+    rms, local = _figures_along_x(fg, r_in_px=4.0)
     assert rms > 2.0 and local > 3.0, (rms, local)
 
 
 def test_the_inner_tube_beyond_a_wider_outer_tube_keeps_its_centerline_figures():
     # The outer tube's width does not leave the inner tube's full sections out: only a wider stretch nearer
     # the tip does. An inner tube (radius 5) 5 px off the backbone beyond an outer one (radius 10) on it.
-    from recon.selfcheck import _centerline_figures
-
     yy, xx = np.mgrid[0:100, 0:400]
     outer = (xx < 200) & (np.abs(yy - 50) <= 10)
     inner = (xx >= 200) & (np.abs(yy - 55) <= 5)
-    uv = np.stack([np.arange(20.0, 380.0), np.full(360, 50.0)], axis=1)
-    normals = np.tile([0.0, 1.0], (360, 1))
-    r_out, r_in = np.full(360, 10.0), np.full(360, 5.0)
     p = SelfCheckParams()
-    rms, local = _centerline_figures(outer | inner, uv, normals, r_out, r_in, p)
+    rms, local = _figures_along_x(outer | inner)
     assert local > 4.5 and rms > 3.0, (rms, local)
-    on_axis = _centerline_figures(outer | np.roll(inner, -5, axis=0), uv, normals, r_out, r_in, p)
+    on_axis = _figures_along_x(outer | np.roll(inner, -5, axis=0))
     assert on_axis[0] < 0.5 and on_axis[1] < 0.5, on_axis
     # Nor does a stretch at the tip merged with clutter, wide and off centre (wide-5-25 frame 0, paper: taken
     # as the tip's width, it left the inner tube out and the merged runs alone made 2.7 px RMS).
     merged = (xx >= 330) & (yy >= 48) & (yy <= 64)  # 1.7 outer radii wide, 6 px off, over the last 50 px
     centred = (xx >= 200) & (xx < 330) & (np.abs(yy - 50) <= 5)
-    rms, local = _centerline_figures(outer | centred | merged, uv, normals, r_out, r_in, p)
+    rms, local = _figures_along_x(outer | centred | merged)
     assert rms < p.max_centerline_rms_px and local < p.max_centerline_local_px, (rms, local)
