@@ -122,10 +122,10 @@ class SelfCheckParams:
         there on to the tip (widths in outer radii at each point's depth: the
         tubes only get thinner towards the tip) where the run reaches that
         section's edge (within ``on_foreground_tolerance_px`` + 1 px), is
-        left out of (c) and (c'): it covers one
-        side of the tube only (the other as bright as the backdrop), and its
-        middle lies off the axis by up to a radius. The robot's tubes differ
-        in width, so no fixed width (only ``1.5 r_in``) tells. 0: none left out.
+        left out of (c) and (c'): it covers one side of the tube only (the
+        other as bright as the backdrop), and its middle lies off the axis by
+        up to a radius. The robot's tubes differ in width, so no fixed width
+        (only ``1.5 r_in``) tells. 0: none left out.
     min_visible_px : float
         A view in which less than this length of the backbone (px) is in the
         image, in front of the base, is not judged.
@@ -1162,6 +1162,35 @@ def _tip_overhang_px(fg: np.ndarray, uv_roi: np.ndarray, r_in_tip: float, end_fa
     return max(0.0, run - end_face_px)
 
 
+def _one_sided(offs: np.ndarray, widths: np.ndarray, r_out_px: np.ndarray, params: SelfCheckParams) -> np.ndarray:
+    """(m,) bool: clean cross-sections (offsets and widths px, base first) that cover one side of the tube only.
+
+    A run much narrower than its neighbours covers one side of the tube only (the other side as bright as
+    the backdrop): its middle is off the axis by up to a radius (wide-3-3 frame 2 of the fast method, wood
+    grain across a three-tube robot: 2.5 px RMS, the backbone 0.9 footprints off). So does one narrower
+    than the widest stretch from there on to the tip, however long it is: the tubes only get thinner
+    towards the tip (wide-2-4: the outer tube's shaded half as dark as the backdrop over its first 84 px,
+    both methods' backbones flagged 10.4 px off its middle). Only stretches centred on the backbone set
+    that width: a run merged with clutter is wide and off centre (wide-5-25 frame 0 of the paper method:
+    84 px of them at the tip). And only a run that reaches the edge of a section of that width centred on
+    the backbone is a side of it: a narrower run inside is measured (a thinner tube off the backbone; left
+    out, wide-6-43 frame 1 of the fast method lost the figure that flagged it). Widths in outer radii
+    (``r_out_px`` per section): depth changes them.
+    """
+    w = widths / r_out_px
+    n_win = max(1, int(round(params.section_width_window_px / (3 * params.sample_step_px))))
+    narrow = w < params.min_section_width_share * _running_median(w, min(n_win, w.size))
+    centred = np.flatnonzero(np.abs(offs) <= params.on_foreground_tolerance_px)
+    if centred.size:
+        tipward = np.maximum.accumulate(_running_median(w[centred], min(n_win, centred.size))[::-1])[::-1]
+        after = np.searchsorted(centred, np.arange(w.size))  # the first centred section at or after each
+        ref = np.where(after < centred.size, tipward[np.minimum(after, centred.size - 1)], 0.0)
+        reach = np.abs(offs) + 0.5 * widths  # the run's far edge from the sample (px)
+        side = np.abs(reach - 0.5 * ref * r_out_px) <= params.on_foreground_tolerance_px + 1.0
+        narrow |= (w < params.min_section_width_share * ref) & side
+    return narrow
+
+
 def _centerline_figures(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_out_px: np.ndarray, r_in_px: np.ndarray,
                         params: SelfCheckParams) -> tuple:
     """``(centerline_rms_px, centerline_max_px)`` of one view's judged samples (region coordinates), None where too few clean sections."""
@@ -1170,31 +1199,8 @@ def _centerline_figures(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray,
     offs, widths = _profile_offsets(fg, uv_roi[sub], normals[sub], r_out_px[sub], r_in_px[sub], params)
     good = np.isfinite(offs)
     if params.min_section_width_share > 0 and good.sum() >= 3:
-        # A run much narrower than its neighbours covers one side of the tube only (the other side as bright
-        # as the backdrop): its middle is off the axis by up to a radius (wide-3-3 frame 2 of the fast
-        # method, wood grain across a three-tube robot: 2.5 px RMS, the backbone 0.9 footprints off).
-        # Against the widest stretch from there on to the tip, too: the tubes only get thinner towards the
-        # tip, so a stretch narrower than one nearer the tip covers part of the tube, however long it is
-        # (wide-2-4: the outer tube's shaded half as dark as the backdrop over its first 84 px, both
-        # methods' backbones flagged 10.4 px off its middle). Only stretches centred on the backbone set
-        # that width: a run merged with clutter is wide and off centre (wide-5-25 frame 0 of the paper
-        # method: 84 px of them at the tip). And only a run that reaches the edge of a section of that
-        # width centred on the backbone is a side of it: a narrower run inside is measured (a thinner
-        # tube off the backbone; left out, wide-6-43 frame 1 of the fast method lost the figure that
-        # flagged it). Widths in outer radii: depth changes them.
         idx = np.flatnonzero(good)
-        w = widths[good] / r_out_px[sub][good]
-        n_win = max(1, int(round(params.section_width_window_px / (3 * params.sample_step_px))))
-        narrow = w < params.min_section_width_share * _running_median(w, min(n_win, w.size))
-        centred = np.flatnonzero(np.abs(offs[good]) <= params.on_foreground_tolerance_px)
-        if centred.size:
-            tipward = np.maximum.accumulate(_running_median(w[centred], min(n_win, centred.size))[::-1])[::-1]
-            after = np.searchsorted(centred, np.arange(w.size))  # the first centred section at or after each
-            ref = np.where(after < centred.size, tipward[np.minimum(after, centred.size - 1)], 0.0)
-            reach = np.abs(offs[good]) + 0.5 * widths[good]  # the run's far edge from the sample (px)
-            side = np.abs(reach - 0.5 * ref * r_out_px[sub][good]) <= params.on_foreground_tolerance_px + 1.0
-            narrow |= (w < params.min_section_width_share * ref) & side
-        good[idx[narrow]] = False
+        good[idx[_one_sided(offs[good], widths[good], r_out_px[sub][good], params)]] = False
     enough = good.sum() >= max(10.0, params.min_profile_fraction * offs.size)
     rms = float(np.sqrt(np.mean(offs[good] ** 2))) if enough else None
     # (c') the largest offset over a stretch: a bump where the method's centerline left the tube for
