@@ -359,7 +359,7 @@ class SelfCheck:
         False when a judged view exceeds a limit, or no view sees the backbone.
     reason : str or None
         One line naming the camera and the figure furthest beyond its limit,
-        e.g. ``"top: 31 % of the reprojected tube is not on foreground (limit 20 %)"``.
+        e.g. ``"top: 41 % of the reprojected tube is not on foreground (limit 30 %)"``.
     figures : dict
         Camera name -> ``{"unexplained_fraction", "unexplained_px",
         "off_foreground_fraction", "tip_off_foreground_px", "tip_overhang_px", "centerline_rms_px",
