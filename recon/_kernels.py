@@ -853,6 +853,8 @@ def frame_shift_nb(frame_flat, mean_flat, W, H, idx, D, G, iterations, patches):
                     G2[a, b2] -= D[i, a] * D[i, b2]
     if nbad > 0:
         beta = np.linalg.solve(G2, rhs2)
+    if not beta[0] > 0.0:
+        return np.nan, np.nan  # no positive gain: a black or inverted frame, nothing of the background to register
     du = beta[4] / beta[0]
     dv = beta[5] / beta[0]
     for _ in range(iterations):
@@ -860,6 +862,8 @@ def frame_shift_nb(frame_flat, mean_flat, W, H, idx, D, G, iterations, patches):
             break
         GG, rr = _shift_normal_equations(f, keep, idx, mean_flat, W, H, du, dv, patches)
         beta = np.linalg.solve(GG, rr)
+        if not beta[0] > 0.0:
+            return np.nan, np.nan
         du += beta[4] / beta[0]
         dv += beta[5] / beta[0]
     return du, dv

@@ -48,7 +48,7 @@ from .methods import Method, register_method
 from .paper import camera_order
 from .rigcal import RigCalibration
 from .subpixel import (ViewCenterline, ViewModel, ViewParams, background_difference, extract_view, fit_curve, off_curve,
-                       prepare_view)
+                       prepare_view, steady_frame)
 from .temporal import JumpLimits, jump_check
 
 __all__ = ["FastParams", "FastModel", "FastReconstruction", "prepare_fast", "FastReconstructor"]
@@ -980,6 +980,18 @@ class FastReconstructor:
         self._prev = None
         self._roi = {}
 
+    def _steady(self, frames: dict, detail: dict) -> dict:
+        """The pair's frames moved back onto their backgrounds by their image shifts (camera jitter,
+        :func:`recon.subpixel.steady_frame`), where ``params.view.jitter_compensation``; its wall time (ms)
+        into ``detail["steady"]``. Every later stage (and its second tries) reads these frames: what they
+        find is in the calibrated cameras' pixel frames, up to the small shift left (``shift_px``)."""
+        if not self.params.view.jitter_compensation:
+            return frames
+        t = time.perf_counter()
+        steady = {n: steady_frame(self.model.views[n], frames[n])[0] for n in self.model.pair}
+        detail["steady"] = 1e3 * (time.perf_counter() - t)
+        return steady
+
     def _extract_views(self, frames: dict, timings: dict, detail: dict) -> dict:
         """Each view's sub-pixel centerline (:func:`recon.subpixel.extract_view`), from last frame's region of
         interest; ``view_<name>`` wall times (ms) into ``timings``, the stages' into ``detail``."""
@@ -1134,6 +1146,7 @@ class FastReconstructor:
             if name not in frames or frames[name] is None:
                 raise FrameError("no frame", name)
             _check_tube_widths(name, model.views[name], params.min_tube_width_px)
+        frames = self._steady(frames, detail)
         views = self._extract_views(frames, timings, detail)
         t = time.perf_counter()
         m, doubt = self._matched(frames, views, detail)
