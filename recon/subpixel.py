@@ -203,8 +203,10 @@ class ViewModel:
         those coarse pixels, and the prior's diagonal (noise / eigenvalue).
     texture_dn_per_px : float
         The mean background's steepest 2 % of gradients (98th percentile,
-        gray levels per px) where it has texture to measure a shift on, else 0:
-        a shift of ``d`` px makes those pixels flicker by ``d`` times this.
+        gray levels per px; of the mean blurred by 1 px, so that the noise
+        left in a mean of few frames does not pass for texture) where it has
+        texture to measure a shift on, else 0: a shift of ``d`` px makes those
+        pixels flicker by ``d`` times this.
     shift_index : (N,) int or None
         The strongest-gradient pixels of the mean background (edges of static
         objects), on which each frame's image shift (camera jitter) is
@@ -589,11 +591,18 @@ def _prepare_shift(model: ViewModel, mean_img: np.ndarray, sigma_pix: float, n: 
     ev = np.linalg.eigvalsh(G[4:, 4:])
     if ev[0] < 1e-3 * ev[-1] or ev[0] < 50.0 * sigma_pix ** 2:
         return
-    object.__setattr__(model, "texture_dn_per_px", float(np.sqrt(np.percentile(flat, 98.0))))
+    object.__setattr__(model, "texture_dn_per_px", _texture_dn_per_px(m, border))
     object.__setattr__(model, "shift_index", idx.astype(np.int64))
     object.__setattr__(model, "shift_design", D)
     object.__setattr__(model, "shift_gram", G)
     object.__setattr__(model, "shift_patches", _shift_patches(model.stack[:, 0].reshape(H, W), y, x))
+
+
+def _texture_dn_per_px(mean_img: np.ndarray, border: int) -> float:
+    """:attr:`ViewModel.texture_dn_per_px` of the mean background ``mean_img`` (gray levels), ``border`` px left out."""
+    m = cv2.GaussianBlur(mean_img.astype(np.float32), (0, 0), 1.0)
+    g = np.hypot(cv2.Sobel(m, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(m, cv2.CV_32F, 0, 1, ksize=3)) / 8.0
+    return float(np.percentile(g[border:-border, border:-border], 98.0))
 
 
 def _steepest_both_ways(gx: np.ndarray, gy: np.ndarray, n: int, floor: float) -> np.ndarray:
@@ -657,13 +666,6 @@ def frame_shift(model: ViewModel, frame: np.ndarray, max_px: float = 3.0, iterat
     return d
 
 
-#: Where the steepest 2 % of the backdrop (:attr:`ViewModel.texture_dn_per_px`) flickers by less than this many gray
-#: levels under a frame's shift, :func:`steady_frame` leaves the frame as it is: below the noise of every
-#: threshold, resampling (1 ms a megapixel) would buy nothing (the paper scene: 1.1 gray levels per px, shifts
-#: up to 1.3 px).
-STEADY_FLICKER_DN = 2.0
-
-
 def steady_frame(model: ViewModel, frame: np.ndarray) -> tuple:
     """The frame moved back onto the background by its image shift (camera jitter, :func:`frame_shift`).
 
@@ -687,16 +689,22 @@ def steady_frame(model: ViewModel, frame: np.ndarray) -> tuple:
     steady : (H, W) uint8 array
         The frame resampled at its pixels plus the shift: in the background's
         (the calibrated camera's) pixel frame. The gray frame as it is where
-        the backdrop's flicker under the shift stays below
-        :data:`STEADY_FLICKER_DN`, or no shift was measured.
+        the backdrop's flicker under the shift (its steepest 2 % of gradients,
+        :attr:`ViewModel.texture_dn_per_px`, times the shift) stays below the
+        pixel noise (``sigma_fine``): there resampling would buy nothing for
+        its cost (~1 ms a megapixel) and blur (the paper scene: 1.2 gray
+        levels per px, shifts up to 1.3 px, noise 3.7 gray levels).
     shift_px : (2,) float64 array
-        The shift undone ``(du, dv)`` px (zeros where none was).
+        The frame's shift measured ``(du, dv)`` px (:func:`frame_shift`).
+    moved : bool
+        Whether ``steady`` was moved back by it (else it is the frame, whose
+        shift ``shift_px`` still is).
     """
     gray = _gray_frame(model, frame)
     d = frame_shift(model, gray)
-    if float(np.hypot(d[0], d[1])) * model.texture_dn_per_px < STEADY_FLICKER_DN:
-        return gray, np.zeros(2)
-    return shifted(gray, d), d
+    if float(np.hypot(d[0], d[1])) * model.texture_dn_per_px < model.sigma_fine:
+        return gray, d, False
+    return shifted(gray, d), d, True
 
 
 def shifted(image: np.ndarray, shift_px) -> np.ndarray:
@@ -2152,7 +2160,7 @@ def _fit_along_path(model: ViewModel, frame: np.ndarray, coarse: CoarseResult, p
 
 
 def extract_view(model: ViewModel, frame: np.ndarray, params: ViewParams, roi=None, timings: dict | None = None,
-                 follow_min_dn: float | None = None, bridge_gaps: bool = True) -> ViewCenterline:
+                 follow_min_dn: float | None = None, bridge_gaps: bool = True, shift_px=None) -> ViewCenterline:
     """Coarse path, fine profiles, spline, tip: the sub-pixel centerline of one view.
 
     Parameters
@@ -2175,6 +2183,10 @@ def extract_view(model: ViewModel, frame: np.ndarray, params: ViewParams, roi=No
     bridge_gaps : bool, optional
         False: following stops at the first gap (what lies beyond one may be
         backdrop that passes for the tube).
+    shift_px : (2,) array or None, optional
+        The frame's image shift (px) where it was measured on this very frame
+        already (:func:`steady_frame`, leaving it as it was); None: measured
+        here (zeros without ``params.jitter_compensation``).
 
     Returns
     -------
@@ -2221,5 +2233,6 @@ def extract_view(model: ViewModel, frame: np.ndarray, params: ViewParams, roi=No
         name=model.name, curve=spl, s_range=(float(s[good[0]]), s_end), points_px=c[good], s=s[good],
         width_px=width[good], end_px=end_px, end_s=s_end, tangent_end=t_end, n_profiles=len(s),
         n_rejected=int(len(s) - good.size), coarse=coarse,
-        shift_px=frame_shift(model, frame) if params.jitter_compensation else np.zeros(2),
+        shift_px=np.asarray(shift_px, np.float64) if shift_px is not None else (
+            frame_shift(model, frame) if params.jitter_compensation else np.zeros(2)),
     )
