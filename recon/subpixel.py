@@ -704,6 +704,10 @@ def steady_frame(model: ViewModel, frame: np.ndarray) -> tuple:
     d = frame_shift(model, gray)
     if float(np.hypot(d[0], d[1])) * model.texture_dn_per_px < model.sigma_fine:
         return gray, d, False
+    # The whole frame: the eigenbackground coefficients are fitted on samples all over it, and the background
+    # frames' jitter gave the eigenbackgrounds shift-like modes; fitted on a frame moved back in part, they
+    # took up the shift outside and put it back inside (a brick test frame moved back around the last
+    # frame's robot: every joint across the shift foreground there).
     return shifted(gray, d), d, True
 
 
@@ -720,7 +724,10 @@ def shifted(image: np.ndarray, shift_px) -> np.ndarray:
         k[i - 1 - lo: i + 3 - lo] = _keys_weights(d - i)
         taps.append((k, -lo))
     (kx, ax), (ky, ay) = taps
-    return cv2.sepFilter2D(image, -1, kx, ky, anchor=(ax, ay), borderType=cv2.BORDER_REPLICATE)
+    # Rows, then columns, each a 1-D filter2D: half the time of sepFilter2D on uint8 (3.2 vs 6.0 ms at 5 MP);
+    # the rows' result is rounded to the image's dtype in between (half a gray level).
+    rows = cv2.filter2D(image, -1, kx[None, :], anchor=(ax, 0), borderType=cv2.BORDER_REPLICATE)
+    return cv2.filter2D(rows, -1, ky[:, None], anchor=(0, ay), borderType=cv2.BORDER_REPLICATE)
 
 
 def _keys_weights(f: float) -> np.ndarray:
