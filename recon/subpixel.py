@@ -724,10 +724,10 @@ def shifted(image: np.ndarray, shift_px) -> np.ndarray:
         k[i - 1 - lo: i + 3 - lo] = _keys_weights(d - i)
         taps.append((k, -lo))
     (kx, ax), (ky, ay) = taps
-    # Rows, then columns, each a 1-D filter2D: half the time of sepFilter2D on uint8 (3.2 vs 6.0 ms at 5 MP);
-    # the rows' result is rounded to the image's dtype in between (half a gray level).
-    rows = cv2.filter2D(image, -1, kx[None, :], anchor=(ax, 0), borderType=cv2.BORDER_REPLICATE)
-    return cv2.filter2D(rows, -1, ky[:, None], anchor=(0, ay), borderType=cv2.BORDER_REPLICATE)
+    # One pass: rows then columns as two uint8 filter2D passes took half the time (3.2 vs 6.0 ms at 5 MP) but
+    # rounded in between, and a thin faint tube lost to the 0.3 gray levels of rounding noise (wide seeds 2
+    # and 3: 3 good frames fewer, the tip error median 1.10 -> 1.09 and 1.18 -> 1.26 px).
+    return cv2.sepFilter2D(image, -1, kx, ky, anchor=(ax, ay), borderType=cv2.BORDER_REPLICATE)
 
 
 def _keys_weights(f: float) -> np.ndarray:
