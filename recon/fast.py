@@ -48,7 +48,7 @@ from .methods import Method, register_method
 from .paper import camera_order
 from .rigcal import RigCalibration
 from .subpixel import (ViewCenterline, ViewModel, ViewParams, background_difference, extract_view, fit_curve, off_curve,
-                       prepare_view)
+                       prepare_view, steady_frame)
 from .temporal import JumpLimits, jump_check
 
 __all__ = ["FastParams", "FastModel", "FastReconstruction", "prepare_fast", "FastReconstructor"]
@@ -268,7 +268,9 @@ class FastReconstruction:
     correspondence : str
         ``"epipolar-angle"`` or ``"ordered-dp"`` (the fallback).
     timings_ms : dict
-        ``view_<name>`` per camera, ``triangulate``, ``total``.
+        ``steady`` (the frames moved back by their jitter, where they were),
+        ``view_<name>`` per camera, ``triangulate``, ``total``, and the
+        stages within them.
     suspect_reason : str or None
         Why the method itself cannot vouch for this shape (the frame is
         reported ``suspect``), e.g. a tube folding across an epipolar plane.
@@ -980,9 +982,27 @@ class FastReconstructor:
         self._prev = None
         self._roi = {}
 
-    def _extract_views(self, frames: dict, timings: dict, detail: dict) -> dict:
+    def _steady(self, frames: dict, detail: dict) -> tuple:
+        """The pair's frames moved back onto their backgrounds by their image shifts (camera jitter,
+        :func:`recon.subpixel.steady_frame`) where ``params.view.jitter_compensation`` and their backdrops'
+        texture would flicker, and the shifts of those left as they were (None: not measured, or moved):
+        ``(frames, shifts)``; the wall time (ms) into ``detail["steady"]``. Every later stage (and its second
+        tries) reads these frames: what they find is in the calibrated cameras' pixel frames, up to the shift
+        left (``ViewCenterline.shift_px``)."""
+        if not self.params.view.jitter_compensation:
+            return frames, {}
+        t = time.perf_counter()
+        steady, shifts = {}, {}
+        for n in self.model.pair:
+            steady[n], shift, moved = steady_frame(self.model.views[n], frames[n])
+            shifts[n] = None if moved else shift
+        detail["steady"] = 1e3 * (time.perf_counter() - t)
+        return steady, shifts
+
+    def _extract_views(self, frames: dict, timings: dict, detail: dict, shifts: dict) -> dict:
         """Each view's sub-pixel centerline (:func:`recon.subpixel.extract_view`), from last frame's region of
-        interest; ``view_<name>`` wall times (ms) into ``timings``, the stages' into ``detail``."""
+        interest, with the frame's shift where ``shifts`` holds it (:meth:`_steady`); ``view_<name>`` wall
+        times (ms) into ``timings``, the stages' into ``detail``."""
         model, params = self.model, self.params
         views = {}
         t = time.perf_counter()
@@ -990,7 +1010,8 @@ class FastReconstructor:
             stages = {}
             roi = self._roi.get(name)
             try:
-                views[name] = extract_view(model.views[name], frames[name], params.view, roi=roi, timings=stages)
+                views[name] = extract_view(model.views[name], frames[name], params.view, roi=roi, timings=stages,
+                                           shift_px=shifts.get(name))
             except FrameError:
                 self._roi.pop(name, None)
                 raise
@@ -1134,7 +1155,8 @@ class FastReconstructor:
             if name not in frames or frames[name] is None:
                 raise FrameError("no frame", name)
             _check_tube_widths(name, model.views[name], params.min_tube_width_px)
-        views = self._extract_views(frames, timings, detail)
+        frames, shifts = self._steady(frames, detail)
+        views = self._extract_views(frames, timings, detail, shifts)
         t = time.perf_counter()
         m, doubt = self._matched(frames, views, detail)
         lap = time.perf_counter()

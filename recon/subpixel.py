@@ -83,6 +83,8 @@ __all__ = [
     "prepare_view",
     "frame_coefficients",
     "frame_shift",
+    "steady_frame",
+    "shifted",
     "coarse_path",
     "coarse_abs_difference",
     "background_difference",
@@ -199,6 +201,17 @@ class ViewModel:
     sample_mean, sample_basis_t, sample_gram, sample_threshold, sample_prior
         Mean, basis (M, k), its Gram matrix, the foreground threshold at
         those coarse pixels, and the prior's diagonal (noise / eigenvalue).
+    texture_dn_per_px : float
+        The mean background's steepest 2 % of gradients (98th percentile,
+        gray levels per px; of the mean blurred by 1 px, so that the noise
+        left in a mean of few frames does not pass for texture) where it has
+        texture to measure a shift on, else 0: a shift of ``d`` px makes those
+        pixels flicker by ``d`` times this.
+    background_jitter_px : (2,) array or None
+        The largest shift along u and along v (px) of the background frames
+        against their mean (None: not measured): the coarse thresholds, learnt
+        on those frames, hold a frame's flicker up to about these shifts times
+        the jitter margin.
     shift_index : (N,) int or None
         The strongest-gradient pixels of the mean background (edges of static
         objects), on which each frame's image shift (camera jitter) is
@@ -259,6 +272,8 @@ class ViewModel:
     inner_radius_px: float
     peak: float
     background_range: float = 0.0
+    texture_dn_per_px: float = 0.0
+    background_jitter_px: np.ndarray = None
     shift_index: np.ndarray = None
     shift_design: np.ndarray = None
     shift_gram: np.ndarray = None
@@ -495,6 +510,9 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
     object.__setattr__(model, "sample_threshold", thr.reshape(-1)[scoarse].astype(np.float32))
     object.__setattr__(model, "sigma_fine", sigma_pix)
     _prepare_shift(model, eigen.mean.reshape(H, W), sigma_pix)
+    if model.shift_index is not None:
+        shifts = np.array([frame_shift(model, f) for f in frames])
+        object.__setattr__(model, "background_jitter_px", np.float64(jitter_margin) * np.abs(shifts).max(axis=0))
     return model
 
 
@@ -562,8 +580,7 @@ def _coarse_thresholds(model: ViewModel, frames: np.ndarray, jitter_margin: floa
 
 
 def _prepare_shift(model: ViewModel, mean_img: np.ndarray, sigma_pix: float, n: int = 3000, border: int = 8) -> None:
-    """Choose the pixels and regressors of :func:`frame_shift` (the mean background's steepest gradients, half
-    each way: :func:`_steepest_both_ways`)."""
+    """Choose the pixels and regressors of :func:`frame_shift` (strongest gradients of the mean background)."""
     H, W = mean_img.shape
     m = mean_img.astype(np.float64)
     gx = cv2.Sobel(m, cv2.CV_64F, 1, 0, ksize=3) / 8.0
@@ -583,21 +600,28 @@ def _prepare_shift(model: ViewModel, mean_img: np.ndarray, sigma_pix: float, n: 
     ev = np.linalg.eigvalsh(G[4:, 4:])
     if ev[0] < 1e-3 * ev[-1] or ev[0] < 50.0 * sigma_pix ** 2:
         return
+    object.__setattr__(model, "texture_dn_per_px", _texture_dn_per_px(m, border))
     object.__setattr__(model, "shift_index", idx.astype(np.int64))
     object.__setattr__(model, "shift_design", D)
     object.__setattr__(model, "shift_gram", G)
     object.__setattr__(model, "shift_patches", _shift_patches(model.stack[:, 0].reshape(H, W), y, x))
 
 
+def _texture_dn_per_px(mean_img: np.ndarray, border: int) -> float:
+    """:attr:`ViewModel.texture_dn_per_px` of the mean background ``mean_img`` (gray levels), ``border`` px left out."""
+    m = cv2.GaussianBlur(mean_img.astype(np.float32), (0, 0), 1.0)
+    g = np.hypot(cv2.Sobel(m, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(m, cv2.CV_32F, 0, 1, ksize=3)) / 8.0
+    return float(np.percentile(g[border:-border, border:-border], 98.0))
+
+
 def _steepest_both_ways(gx: np.ndarray, gy: np.ndarray, n: int, floor: float) -> np.ndarray:
     """Up to ``n`` flat pixel indices, sorted: half the steepest along u (``|gx|``), half along v (``|gy|``), each
     steeper than ``floor`` (gray levels per px), fewer where fewer are.
 
-    Half each way: among the steepest pixels of a backdrop one edge direction can crowd out the other (bricks
-    whose long joints are the sharper: 2800 of 3000 pixels on them left the shift across them unmeasured,
-    and it came out a pixel off). In raster order: the frame's pixels are read in passes over a few MB, and
-    read in order they come from memory at a third less cost than scattered (0.45 -> 0.30 ms a view with
-    cold caches).
+    Half each way: among the steepest pixels of a backdrop one edge direction can crowd out the other (bricks:
+    their long joints; 2900 of 3000 pixels on them left the shift across them unmeasured, and it came out a
+    pixel off). In raster order: the frame's pixels are read in passes over a few MB, and read in order they
+    come from memory at a third less cost than scattered (0.45 -> 0.30 ms a view with cold caches).
     """
     picked = []
     for g in (np.abs(gx), np.abs(gy)):
@@ -649,6 +673,95 @@ def frame_shift(model: ViewModel, frame: np.ndarray, max_px: float = 3.0, iterat
     if not np.all(np.isfinite(d)) or float(np.hypot(d[0], d[1])) > max_px:
         return np.zeros(2)
     return d
+
+
+def steady_frame(model: ViewModel, frame: np.ndarray) -> tuple:
+    """The frame moved back onto the background by its image shift (camera jitter, :func:`frame_shift`).
+
+    Under jitter every edge of a textured backdrop differs from the background
+    model by up to its gradient times the shift: bricks' mortar or printed text
+    passes the coarse threshold and, being as thin as a tube, is taken for one
+    (wide-2-41 frame 1, side view: 3400 coarse foreground px, the tube left
+    along a joint; 340 px, the tube alone, once the 0.41 x 0.55 px shift was
+    undone). Only a frame that jitters beyond the background frames, along u
+    or v (:attr:`ViewModel.background_jitter_px`), is moved: within them the
+    coarse thresholds learnt on those frames hold the flicker, and resampling
+    only blurs (the CI wide set's wide-21-3 frame 2, a faint tube under 4 px:
+    moved back, both views lost its last 38 footprints). Cubic convolution
+    (:func:`_keys_weights`): bilinear resampling at half a pixel halves a thin
+    tube's end cap, and tips came out shorter.
+
+    Parameters
+    ----------
+    model : ViewModel
+        The view's constants.
+    frame : (H, W) or (H, W, 3) array
+        The frame (gray levels).
+
+    Returns
+    -------
+    steady : (H, W) uint8 array
+        The frame resampled at its pixels plus the shift: in the background's
+        (the calibrated camera's) pixel frame. The gray frame as it is where
+        the shift is within the background frames', or where the backdrop's flicker under the shift (its steepest 2 % of gradients,
+        :attr:`ViewModel.texture_dn_per_px`, times the shift) stays below the
+        pixel noise (``sigma_fine``): there resampling would buy nothing for
+        its cost (~1 ms a megapixel) and blur (the paper scene: 1.2 gray
+        levels per px, shifts up to 1.3 px, noise 3.7 gray levels).
+    shift_px : (2,) float64 array
+        The frame's shift measured ``(du, dv)`` px (:func:`frame_shift`).
+    moved : bool
+        Whether ``steady`` was moved back by it (else it is the frame, whose
+        shift ``shift_px`` still is).
+    """
+    gray = _gray_frame(model, frame)
+    d = frame_shift(model, gray)
+    within = model.background_jitter_px is not None and bool(np.all(np.abs(d) <= model.background_jitter_px))
+    if within or float(np.hypot(d[0], d[1])) * model.texture_dn_per_px < model.sigma_fine:
+        return gray, d, False
+    # The whole frame: the eigenbackground coefficients are fitted on samples all over it, and the background
+    # frames' jitter gave the eigenbackgrounds shift-like modes; fitted on a frame moved back in part, they
+    # took up the shift outside and put it back inside (a brick test frame moved back around the last
+    # frame's robot: every joint across the shift foreground there).
+    return shifted(gray, d), d, True
+
+
+def shifted(image: np.ndarray, shift_px) -> np.ndarray:
+    """The image resampled at its pixels plus a shift, by separable cubic convolution (:func:`_keys_weights`).
+
+    Parameters
+    ----------
+    image : (H, W) array
+        Gray levels (uint8 or float32).
+    shift_px : (2,) array_like
+        ``(du, dv)`` px along u (columns) and v (rows).
+
+    Returns
+    -------
+    (H, W) array
+        ``out[v, u] = image(u + du, v + dv)``, the border repeated beyond the
+        image; the image's dtype (integers rounded and saturated).
+    """
+    taps = []
+    for d in (float(shift_px[0]), float(shift_px[1])):
+        i = int(np.floor(d))
+        # The kernel spans the four taps' offsets i-1..i+2 and 0 (the anchor, which must lie inside it).
+        lo, hi = min(i - 1, 0), max(i + 2, 0)
+        k = np.zeros(hi - lo + 1, np.float32)
+        k[i - 1 - lo: i + 3 - lo] = _keys_weights(d - i)
+        taps.append((k, -lo))
+    (kx, ax), (ky, ay) = taps
+    # One pass: rows then columns as two uint8 filter2D passes took half the time (3.2 vs 6.0 ms at 5 MP) but
+    # rounded in between, and a thin faint tube lost to the 0.3 gray levels of rounding noise (wide seeds 2
+    # and 3: 3 good frames fewer, the tip error median 1.10 -> 1.09 and 1.18 -> 1.26 px).
+    return cv2.sepFilter2D(image, -1, kx, ky, anchor=(ax, ay), borderType=cv2.BORDER_REPLICATE)
+
+
+def _keys_weights(f: float) -> np.ndarray:
+    """The weights of Keys' cubic convolution (a = -1/2, Catmull-Rom) at the taps -1, 0, 1, 2 px around a sample
+    ``f`` (0 <= f < 1) px past tap 0: interpolating, exact for quadratics."""
+    t = np.abs(np.arange(-1.0, 3.0) - f)
+    return np.where(t <= 1.0, 1.5 * t ** 3 - 2.5 * t ** 2 + 1.0, -0.5 * t ** 3 + 2.5 * t ** 2 - 4.0 * t + 2.0)
 
 
 # ----------------------------------------------------------------------------- coarse stage
@@ -2081,7 +2194,7 @@ def _fit_along_path(model: ViewModel, frame: np.ndarray, coarse: CoarseResult, p
 
 
 def extract_view(model: ViewModel, frame: np.ndarray, params: ViewParams, roi=None, timings: dict | None = None,
-                 follow_min_dn: float | None = None, bridge_gaps: bool = True) -> ViewCenterline:
+                 follow_min_dn: float | None = None, bridge_gaps: bool = True, shift_px=None) -> ViewCenterline:
     """Coarse path, fine profiles, spline, tip: the sub-pixel centerline of one view.
 
     Parameters
@@ -2104,6 +2217,10 @@ def extract_view(model: ViewModel, frame: np.ndarray, params: ViewParams, roi=No
     bridge_gaps : bool, optional
         False: following stops at the first gap (what lies beyond one may be
         backdrop that passes for the tube).
+    shift_px : (2,) array or None, optional
+        The frame's image shift (px) where it was measured on this very frame
+        already (:func:`steady_frame`, leaving it as it was); None: measured
+        here (zeros without ``params.jitter_compensation``).
 
     Returns
     -------
@@ -2150,5 +2267,6 @@ def extract_view(model: ViewModel, frame: np.ndarray, params: ViewParams, roi=No
         name=model.name, curve=spl, s_range=(float(s[good[0]]), s_end), points_px=c[good], s=s[good],
         width_px=width[good], end_px=end_px, end_s=s_end, tangent_end=t_end, n_profiles=len(s),
         n_rejected=int(len(s) - good.size), coarse=coarse,
-        shift_px=frame_shift(model, frame) if params.jitter_compensation else np.zeros(2),
+        shift_px=np.asarray(shift_px, np.float64) if shift_px is not None else (
+            frame_shift(model, frame) if params.jitter_compensation else np.zeros(2)),
     )

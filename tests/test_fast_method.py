@@ -644,6 +644,69 @@ def test_the_jitter_of_a_brick_backdrop_is_measured_both_ways():
         np.testing.assert_array_equal(frame_shift(model.views[n], np.zeros_like(frame)), [0.0, 0.0])
 
 
+@pytest.mark.parametrize("shift", [(2.0, -1.0), (-3.0, 3.0), (0.5, 0.25), (-1.3, 2.7), (0.0, -0.6)])
+def test_shifted_reads_the_image_at_its_pixels_plus_the_shift(shift):
+    """Whole-pixel shifts copy pixels (the border repeated beyond the image); sub-pixel ones reproduce a
+    quadratic surface (cubic convolution is exact for quadratics) to float32 rounding."""
+    rng = np.random.default_rng(4)
+    du, dv = shift
+    yy, xx = np.mgrid[0:40, 0:50].astype(np.float64)
+    surface = lambda x, y: 0.02 * x * x - 0.03 * x * y + 0.5 * y + 3.0
+    out = subpixel_module.shifted(surface(xx, yy).astype(np.float32), shift)
+    np.testing.assert_allclose(out[4:-4, 4:-4], surface(xx + du, yy + dv)[4:-4, 4:-4], atol=1e-3)
+    if du == int(du) and dv == int(dv):
+        img = rng.integers(0, 256, (40, 50), dtype=np.uint8)
+        rows, cols = np.clip(np.arange(40) + int(dv), 0, 39), np.clip(np.arange(50) + int(du), 0, 49)
+        np.testing.assert_array_equal(subpixel_module.shifted(img, shift), img[rows][:, cols])
+
+
+def test_a_frame_jittered_beyond_its_background_frames_is_moved_back():
+    """Background frames of a brick backdrop jittered by +-0.25 px: a frame jittered by (0.75, -0.5) px flickers
+    beyond what the coarse thresholds learnt on them hold; moved back onto the background, the joints leave
+    the coarse foreground (a tenth as much of it is left, the tube's) and the backbone is as accurate as on a
+    plain backdrop. A frame jittered within the background frames' range is left as it is."""
+    rng = np.random.default_rng(12)
+    rig = _rig()
+    levels = rng.uniform(110.0, 170.0, (40, 20))
+    shifts = [(a, b) for a in (-0.25, 0.25) for b in (-0.25, 0.25)] * 2
+    noisy = lambda img: np.clip(img + rng.normal(0.0, 2.0, img.shape), 0, 255).astype(np.uint8)
+    backgrounds = {n: np.stack([noisy(_bricks(levels, *d)) for d in shifts]) for n in rig.names}
+    s, pts, radii = robot_backbone()
+
+    def frames_at(du, dv):
+        jittered = {n: replace(rig[n], K=rig[n].K + [[0, 0, du], [0, 0, dv], [0, 0, 0]]) for n in rig.names}
+        return {n: noisy(draw_tube(_bricks(levels, du, dv), jittered[n], pts, radii, level=60.0)) for n in rig.names}
+
+    model = prepare_fast(rig, backgrounds)
+    frames = frames_at(0.75, -0.5)
+    for n in rig.names:
+        vm = model.views[n]
+        steady, shift, moved = subpixel_module.steady_frame(vm, frames[n])
+        assert moved, (n, shift, vm.background_jitter_px)
+        hc, wc = vm.coarse_shape
+        fg = [int(subpixel_module._coarse_foreground(vm, f, frame_coefficients(vm, f), (0, 0, wc, hc))[0].sum())
+              for f in (frames[n], steady)]
+        assert fg[1] < 0.15 * fg[0], (n, fg)
+    e = backbone_errors(FastReconstructor(model)(frames).points_world_mm, pts)
+    assert e["mean_error_mm"] < 0.04 and e["max_error_mm"] < 0.4, e
+    for n, frame in frames_at(0.15, -0.1).items():
+        steady, shift, moved = subpixel_module.steady_frame(model.views[n], frame)
+        assert not moved and steady is frame, (n, shift, model.views[n].background_jitter_px)
+
+
+def test_frames_of_a_plain_backdrop_are_used_as_they_are(paper_scene, paper_frames):
+    """The paper scene's backdrop is plain but for a few static edges: its jitter (up to ~1.3 px) is measured
+    and the frames are left unresampled (no flicker to undo; resampling blurs and costs ~1 ms a megapixel)."""
+    backgrounds, shots = paper_frames
+    model = prepare_fast(paper_scene.rig, backgrounds)
+    for shot in shots:
+        for name, vm in model.views.items():
+            frame = shot.images[name]
+            steady, shift, moved = subpixel_module.steady_frame(vm, frame)
+            assert not moved and steady is frame
+            np.testing.assert_array_equal(shift, frame_shift(vm, frame))
+
+
 def test_frame_shift_and_coefficients_agree_with_their_oracles(paper_scene, paper_frames):
     """Jitter and background coefficients on rendered frames (the synthetic backdrop has no texture to
     register on)."""
