@@ -984,9 +984,9 @@ class FastReconstructor:
 
     def _steady(self, frames: dict, detail: dict) -> tuple:
         """The pair's frames moved back onto their backgrounds by their image shifts (camera jitter,
-        :func:`recon.subpixel.steady_frame`) where ``params.view.jitter_compensation`` and their backdrops'
-        texture would flicker, and the shifts of those left as they were (None: not measured, or moved):
-        ``(frames, shifts)``; the wall time (ms) into ``detail["steady"]``. Every later stage (and its second
+        :func:`recon.subpixel.steady_frame`) where ``params.view.jitter_compensation`` and they jitter beyond
+        the background frames over a textured backdrop, and the shifts of those left as they were (None: not
+        measured, or moved): ``(frames, shifts)``; the wall time (ms) into ``detail["steady"]``. Every later stage (and its second
         tries) reads these frames: what they find is in the calibrated cameras' pixel frames, up to the shift
         left (``ViewCenterline.shift_px``)."""
         if not self.params.view.jitter_compensation:

@@ -208,10 +208,10 @@ class ViewModel:
         texture to measure a shift on, else 0: a shift of ``d`` px makes those
         pixels flicker by ``d`` times this.
     background_jitter_px : (2,) array or None
-        The largest shift along u and along v (px) of the background frames
-        against their mean (None: not measured): the coarse thresholds, learnt
-        on those frames, hold a frame's flicker up to about these shifts times
-        the jitter margin.
+        The background frames' largest shift along u and along v against their
+        mean, times the jitter margin (px; None: not measured): the coarse
+        thresholds, learnt on those frames, hold a frame's flicker up to these
+        shifts.
     shift_index : (N,) int or None
         The strongest-gradient pixels of the mean background (edges of static
         objects), on which each frame's image shift (camera jitter) is
@@ -580,7 +580,8 @@ def _coarse_thresholds(model: ViewModel, frames: np.ndarray, jitter_margin: floa
 
 
 def _prepare_shift(model: ViewModel, mean_img: np.ndarray, sigma_pix: float, n: int = 3000, border: int = 8) -> None:
-    """Choose the pixels and regressors of :func:`frame_shift` (strongest gradients of the mean background)."""
+    """Choose the pixels and regressors of :func:`frame_shift` (the mean background's steepest gradients, half
+    each way: :func:`_steepest_both_ways`) and :attr:`ViewModel.texture_dn_per_px`."""
     H, W = mean_img.shape
     m = mean_img.astype(np.float64)
     gx = cv2.Sobel(m, cv2.CV_64F, 1, 0, ksize=3) / 8.0
@@ -618,10 +619,11 @@ def _steepest_both_ways(gx: np.ndarray, gy: np.ndarray, n: int, floor: float) ->
     """Up to ``n`` flat pixel indices, sorted: half the steepest along u (``|gx|``), half along v (``|gy|``), each
     steeper than ``floor`` (gray levels per px), fewer where fewer are.
 
-    Half each way: among the steepest pixels of a backdrop one edge direction can crowd out the other (bricks:
-    their long joints; 2900 of 3000 pixels on them left the shift across them unmeasured, and it came out a
-    pixel off). In raster order: the frame's pixels are read in passes over a few MB, and read in order they
-    come from memory at a third less cost than scattered (0.45 -> 0.30 ms a view with cold caches).
+    Half each way: among the steepest pixels of a backdrop one edge direction can crowd out the other (bricks
+    whose long joints are the sharper: 2800 of 3000 pixels on them left the shift across them unmeasured,
+    and it came out a pixel off). In raster order: the frame's pixels are read in passes over a few MB, and
+    read in order they come from memory at a third less cost than scattered (0.45 -> 0.30 ms a view with
+    cold caches).
     """
     picked = []
     for g in (np.abs(gx), np.abs(gy)):
@@ -679,17 +681,16 @@ def steady_frame(model: ViewModel, frame: np.ndarray) -> tuple:
     """The frame moved back onto the background by its image shift (camera jitter, :func:`frame_shift`).
 
     Under jitter every edge of a textured backdrop differs from the background
-    model by up to its gradient times the shift: bricks' mortar or printed text
-    passes the coarse threshold and, being as thin as a tube, is taken for one
-    (wide-2-41 frame 1, side view: 3400 coarse foreground px, the tube left
-    along a joint; 340 px, the tube alone, once the 0.41 x 0.55 px shift was
-    undone). Only a frame that jitters beyond the background frames, along u
-    or v (:attr:`ViewModel.background_jitter_px`), is moved: within them the
-    coarse thresholds learnt on those frames hold the flicker, and resampling
-    only blurs (the CI wide set's wide-21-3 frame 2, a faint tube under 4 px:
-    moved back, both views lost its last 38 footprints). Cubic convolution
-    (:func:`_keys_weights`): bilinear resampling at half a pixel halves a thin
-    tube's end cap, and tips came out shorter.
+    model by up to its gradient times the shift. The coarse thresholds, learnt
+    on the background frames, hold that flicker as far as those frames jittered
+    (:attr:`ViewModel.background_jitter_px`); a frame that jitters further
+    along u or v has its backdrop's edges, as thin as a tube, pass for one
+    (wide-2-23 frame 1, noise: 35 footprints off; moved back, 4.7). Only such a
+    frame is moved: within that range resampling only blurs (the CI wide set's
+    wide-21-3 frame 2, a faint tube under 4 px: moved back, both views lost its
+    last 38 footprints). Cubic convolution (:func:`_keys_weights`): bilinear
+    resampling at half a pixel halves a thin tube's end cap, and tips came
+    out shorter.
 
     Parameters
     ----------
@@ -703,7 +704,8 @@ def steady_frame(model: ViewModel, frame: np.ndarray) -> tuple:
     steady : (H, W) uint8 array
         The frame resampled at its pixels plus the shift: in the background's
         (the calibrated camera's) pixel frame. The gray frame as it is where
-        the shift is within the background frames', or where the backdrop's flicker under the shift (its steepest 2 % of gradients,
+        the shift is within the background frames', or where the backdrop's
+        flicker under it (its steepest 2 % of gradients,
         :attr:`ViewModel.texture_dn_per_px`, times the shift) stays below the
         pixel noise (``sigma_fine``): there resampling would buy nothing for
         its cost (~1 ms a megapixel) and blur (the paper scene: 1.2 gray
