@@ -797,7 +797,7 @@ SHIFT_PATCH_BACK = 3
 
 @njit(cache=True, nogil=True)
 def frame_shift_nb(frame_flat, mean_flat, W, H, idx, D, G, iterations, patches):
-    """:func:`recon.subpixel.frame_shift` without the final plausibility check.
+    """:func:`recon.jitter.frame_shift` without the final plausibility check.
 
     Parameters
     ----------

@@ -52,13 +52,10 @@ import cv2
 import numpy as np
 
 from ._kernels import (
-    SHIFT_PATCH,
-    SHIFT_PATCH_BACK,
     bfs_path_nb,
     coarse_foreground_nb,
     coarse_foreground_tiles_nb,
     frame_coefficients_nb,
-    frame_shift_nb,
     median_nb,
     near_any_nb,
     profile_values_nb,
@@ -74,6 +71,7 @@ from ._kernels import (
 from .background import no_picture, to_gray
 from .errors import FrameError
 from .halflit import BASE_STRETCH, half_lit_moves, lit_side
+from .jitter import ShiftModel, frame_shift, prepare_shift, shifted
 from .geometry import resample_arc
 
 __all__ = [
@@ -82,9 +80,7 @@ __all__ = [
     "ViewCenterline",
     "prepare_view",
     "frame_coefficients",
-    "frame_shift",
     "steady_frame",
-    "shifted",
     "coarse_path",
     "coarse_abs_difference",
     "background_difference",
@@ -153,7 +149,7 @@ class ViewParams:
         parameter, the arc length along the coarse path).
     jitter_compensation : bool
         Measure each frame's image shift against the background's static
-        edges (camera jitter, :func:`frame_shift`), so that the caller can undo
+        edges (camera jitter, :func:`recon.jitter.frame_shift`), so that the caller can undo
         it before triangulating; False: ``ViewCenterline.shift_px`` is zero.
     """
 
@@ -201,27 +197,14 @@ class ViewModel:
     sample_mean, sample_basis_t, sample_gram, sample_threshold, sample_prior
         Mean, basis (M, k), its Gram matrix, the foreground threshold at
         those coarse pixels, and the prior's diagonal (noise / eigenvalue).
-    texture_dn_per_px : float
-        The mean background's steepest 2 % of gradients (98th percentile,
-        gray levels per px; of the mean blurred by 1 px, so that the noise
-        left in a mean of few frames does not pass for texture) where it has
-        texture to measure a shift on, else 0: a shift of ``d`` px makes those
-        pixels flicker by ``d`` times this.
     background_jitter_px : (2,) array or None
         The background frames' largest shift along u and along v against their
         mean, times the jitter margin (px; None: not measured): the coarse
         thresholds, learnt on those frames, hold a frame's flicker up to these
         shifts.
-    shift_index : (N,) int or None
-        The strongest-gradient pixels of the mean background (edges of static
-        objects), on which each frame's image shift (camera jitter) is
-        measured; None when the background has too little texture.
-    shift_design : (N, 6) float64
-        Regressors there: mean, 1, x * mean, y * mean, -d mean/du, -d mean/dv.
-    shift_gram : (6, 6) float64
-    shift_patches : (N, 8, 8) float32
-        The mean background around each of those pixels (from 3 px above and
-        left of it), for the shift's Gauss-Newton step.
+    shift : recon.jitter.ShiftModel or None
+        The mean background's edges on which each frame's image shift (camera
+        jitter) is measured; None when the background has too little texture.
     coarse_threshold : (Hc, Wc) float32
         Foreground threshold per coarse pixel (gray levels), learnt on
         :func:`coarse_abs_difference` (never below the absolute value of the
@@ -272,12 +255,8 @@ class ViewModel:
     inner_radius_px: float
     peak: float
     background_range: float = 0.0
-    texture_dn_per_px: float = 0.0
     background_jitter_px: np.ndarray = None
-    shift_index: np.ndarray = None
-    shift_design: np.ndarray = None
-    shift_gram: np.ndarray = None
-    shift_patches: np.ndarray = None
+    shift: ShiftModel = None
     coarse_stack: np.ndarray = None
     start_px: np.ndarray = None
     start_search_px: float = 0.0
@@ -378,7 +357,7 @@ def background_difference(model: ViewModel, frame: np.ndarray, coeff: np.ndarray
     """Frame minus background over a box of full-resolution pixels (gray levels).
 
     The background is rebuilt there (``ViewModel.stack @ coeff``) and moved by
-    the frame's image shift (:func:`frame_shift`), so the edges of a textured
+    the frame's image shift (:func:`recon.jitter.frame_shift`), so the edges of a textured
     backdrop cancel under camera jitter.
 
     Parameters
@@ -509,9 +488,9 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
     object.__setattr__(model, "coarse_threshold", thr.astype(np.float32))
     object.__setattr__(model, "sample_threshold", thr.reshape(-1)[scoarse].astype(np.float32))
     object.__setattr__(model, "sigma_fine", sigma_pix)
-    _prepare_shift(model, eigen.mean.reshape(H, W), sigma_pix)
-    if model.shift_index is not None:
-        shifts = np.array([frame_shift(model, f) for f in frames])
+    object.__setattr__(model, "shift", prepare_shift(eigen.mean.reshape(H, W), sigma_pix))
+    if model.shift is not None:
+        shifts = np.array([frame_shift(model.shift, f) for f in frames])
         object.__setattr__(model, "background_jitter_px", np.float64(jitter_margin) * np.abs(shifts).max(axis=0))
     return model
 
@@ -579,106 +558,8 @@ def _coarse_thresholds(model: ViewModel, frames: np.ndarray, jitter_margin: floa
     return np.maximum(thr, np.float32(floor))
 
 
-def _prepare_shift(model: ViewModel, mean_img: np.ndarray, sigma_pix: float, n: int = 3000, border: int = 8) -> None:
-    """Choose the pixels and regressors of :func:`frame_shift` (the mean background's steepest gradients, half
-    each way: :func:`_steepest_both_ways`) and :attr:`ViewModel.texture_dn_per_px`."""
-    H, W = mean_img.shape
-    m = mean_img.astype(np.float64)
-    gx = cv2.Sobel(m, cv2.CV_64F, 1, 0, ksize=3) / 8.0
-    gy = cv2.Sobel(m, cv2.CV_64F, 0, 1, ksize=3) / 8.0
-    g2 = gx * gx + gy * gy
-    g2[:border] = g2[-border:] = 0.0
-    g2[:, :border] = g2[:, -border:] = 0.0
-    flat = g2.reshape(-1)
-    idx = _steepest_both_ways(gx.reshape(-1) * (flat > 0), gy.reshape(-1) * (flat > 0), n, 3.0 * sigma_pix)
-    if idx.size < 50:
-        return  # no texture to register on: frames are used as they are
-    y, x = np.divmod(idx, W)
-    mv = m.reshape(-1)[idx]
-    D = np.stack([mv, np.ones(idx.size), (x / W - 0.5) * mv, (y / H - 0.5) * mv, -gx.reshape(-1)[idx], -gy.reshape(-1)[idx]], axis=1)
-    G = D.T @ D
-    # Both shift directions must be measurable (edges in more than one direction).
-    ev = np.linalg.eigvalsh(G[4:, 4:])
-    if ev[0] < 1e-3 * ev[-1] or ev[0] < 50.0 * sigma_pix ** 2:
-        return
-    object.__setattr__(model, "texture_dn_per_px", _texture_dn_per_px(m, border))
-    object.__setattr__(model, "shift_index", idx.astype(np.int64))
-    object.__setattr__(model, "shift_design", D)
-    object.__setattr__(model, "shift_gram", G)
-    object.__setattr__(model, "shift_patches", _shift_patches(model.stack[:, 0].reshape(H, W), y, x))
-
-
-def _texture_dn_per_px(mean_img: np.ndarray, border: int) -> float:
-    """:attr:`ViewModel.texture_dn_per_px` of the mean background ``mean_img`` (gray levels), ``border`` px left out."""
-    m = cv2.GaussianBlur(mean_img.astype(np.float32), (0, 0), 1.0)
-    g = np.hypot(cv2.Sobel(m, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(m, cv2.CV_32F, 0, 1, ksize=3)) / 8.0
-    return float(np.percentile(g[border:-border, border:-border], 98.0))
-
-
-def _steepest_both_ways(gx: np.ndarray, gy: np.ndarray, n: int, floor: float) -> np.ndarray:
-    """Up to ``n`` flat pixel indices, sorted: half the steepest along u (``|gx|``), half along v (``|gy|``), each
-    steeper than ``floor`` (gray levels per px), fewer where fewer are.
-
-    Half each way: among the steepest pixels of a backdrop one edge direction can crowd out the other (bricks
-    whose long joints are the sharper: 2800 of 3000 pixels on them left the shift across them unmeasured,
-    and it came out a pixel off). In raster order: the frame's pixels are read in passes over a few MB, and
-    read in order they come from memory at a third less cost than scattered (0.45 -> 0.30 ms a view with
-    cold caches).
-    """
-    picked = []
-    for g in (np.abs(gx), np.abs(gy)):
-        k = min(n // 2, int(np.count_nonzero(g > floor)))
-        if k > 0:
-            picked.append(np.argpartition(g, -k)[-k:])
-    return np.unique(np.concatenate(picked)) if picked else np.zeros(0, np.int64)
-
-
-def _shift_patches(mean_f32: np.ndarray, y: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """(N, 8, 8) float32: ``mean_f32`` (the stack's mean, (H, W)) from ``SHIFT_PATCH_BACK`` px above and left of
-    each pixel ``(y, x)`` on (:func:`recon._kernels.frame_shift_nb`); the pixels lie over 4 px inside the image."""
-    r = np.arange(SHIFT_PATCH) - SHIFT_PATCH_BACK
-    return np.ascontiguousarray(mean_f32[(y[:, None] + r)[:, :, None], (x[:, None] + r)[:, None, :]], np.float32)
-
-
-def frame_shift(model: ViewModel, frame: np.ndarray, max_px: float = 3.0, iterations: int = 1) -> np.ndarray:
-    """Image shift of a frame against the mean background: the camera's jitter.
-
-    Fitted at the static edges of the background (:func:`_prepare_shift`) with
-    the lighting (gain, offset, linear ramps) as nuisance terms; pixels that do
-    not fit (the robot in front of an edge) are dropped and the fit repeated,
-    then ``iterations`` Gauss-Newton steps re-sample the regressors at the
-    shifted positions (:func:`recon._kernels.frame_shift_nb`).
-
-    Parameters
-    ----------
-    model : ViewModel
-        The view's constants.
-    frame : (H, W) uint8 array
-        The frame (gray levels).
-    max_px : float, optional
-        Largest plausible shift (px); a larger or non-finite one gives zeros.
-    iterations : int, optional
-        Gauss-Newton steps after the first, linearized fit.
-
-    Returns
-    -------
-    (2,) float64 array
-        ``(du, dv)`` px in the image's pixel frame: where the frame's content
-        lies relative to the mean background. Zeros when the background has
-        no usable texture or the fit is implausible.
-    """
-    if model.shift_index is None:
-        return np.zeros(2)
-    H, W = model.shape
-    d = np.array(frame_shift_nb(frame.reshape(-1), model.stack[:, 0], W, H, model.shift_index, model.shift_design,
-                                model.shift_gram, iterations, model.shift_patches))
-    if not np.all(np.isfinite(d)) or float(np.hypot(d[0], d[1])) > max_px:
-        return np.zeros(2)
-    return d
-
-
 def steady_frame(model: ViewModel, frame: np.ndarray) -> tuple:
-    """The frame moved back onto the background by its image shift (camera jitter, :func:`frame_shift`).
+    """The frame moved back onto the background by its image shift (camera jitter, :func:`recon.jitter.frame_shift`).
 
     Under jitter every edge of a textured backdrop differs from the background
     model by up to its gradient times the shift. The coarse thresholds, learnt
@@ -688,7 +569,7 @@ def steady_frame(model: ViewModel, frame: np.ndarray) -> tuple:
     (wide-2-23 frame 1, noise: 35 footprints off; moved back, 4.7). Only such a
     frame is moved: within that range resampling only blurs (the CI wide set's
     wide-21-3 frame 2, a faint tube under 4 px: moved back, both views lost its
-    last 38 footprints). Cubic convolution (:func:`_keys_weights`): bilinear
+    last 38 footprints). Cubic convolution (:func:`recon.jitter.shifted`): bilinear
     resampling at half a pixel halves a thin tube's end cap, and tips came
     out shorter.
 
@@ -706,64 +587,28 @@ def steady_frame(model: ViewModel, frame: np.ndarray) -> tuple:
         (the calibrated camera's) pixel frame. The gray frame as it is where
         the shift is within the background frames', or where the backdrop's
         flicker under it (its steepest 2 % of gradients,
-        :attr:`ViewModel.texture_dn_per_px`, times the shift) stays below the
+        :attr:`recon.jitter.ShiftModel.texture_dn_per_px`, times the shift) stays below the
         pixel noise (``sigma_fine``): there resampling would buy nothing for
         its cost (~1 ms a megapixel) and blur (the paper scene: 1.2 gray
         levels per px, shifts up to 1.3 px, noise 3.7 gray levels).
     shift_px : (2,) float64 array
-        The frame's shift measured ``(du, dv)`` px (:func:`frame_shift`).
+        The frame's shift measured ``(du, dv)`` px (:func:`recon.jitter.frame_shift`).
     moved : bool
         Whether ``steady`` was moved back by it (else it is the frame, whose
         shift ``shift_px`` still is).
     """
     gray = _gray_frame(model, frame)
-    d = frame_shift(model, gray)
+    if model.shift is None:
+        return gray, np.zeros(2), False  # no texture: nothing to measure on, nothing that flickers
+    d = frame_shift(model.shift, gray)
     within = model.background_jitter_px is not None and bool(np.all(np.abs(d) <= model.background_jitter_px))
-    if within or float(np.hypot(d[0], d[1])) * model.texture_dn_per_px < model.sigma_fine:
+    if within or float(np.hypot(d[0], d[1])) * model.shift.texture_dn_per_px < model.sigma_fine:
         return gray, d, False
     # The whole frame: the eigenbackground coefficients are fitted on samples all over it, and the background
     # frames' jitter gave the eigenbackgrounds shift-like modes; fitted on a frame moved back in part, they
     # took up the shift outside and put it back inside (a brick test frame moved back around the last
     # frame's robot: every joint across the shift foreground there).
     return shifted(gray, d), d, True
-
-
-def shifted(image: np.ndarray, shift_px) -> np.ndarray:
-    """The image resampled at its pixels plus a shift, by separable cubic convolution (:func:`_keys_weights`).
-
-    Parameters
-    ----------
-    image : (H, W) array
-        Gray levels (uint8 or float32).
-    shift_px : (2,) array_like
-        ``(du, dv)`` px along u (columns) and v (rows).
-
-    Returns
-    -------
-    (H, W) array
-        ``out[v, u] = image(u + du, v + dv)``, the border repeated beyond the
-        image; the image's dtype (integers rounded and saturated).
-    """
-    taps = []
-    for d in (float(shift_px[0]), float(shift_px[1])):
-        i = int(np.floor(d))
-        # The kernel spans the four taps' offsets i-1..i+2 and 0 (the anchor, which must lie inside it).
-        lo, hi = min(i - 1, 0), max(i + 2, 0)
-        k = np.zeros(hi - lo + 1, np.float32)
-        k[i - 1 - lo: i + 3 - lo] = _keys_weights(d - i)
-        taps.append((k, -lo))
-    (kx, ax), (ky, ay) = taps
-    # One pass: rows then columns as two uint8 filter2D passes took half the time (3.2 vs 6.0 ms at 5 MP) but
-    # rounded in between, and a thin faint tube lost to the 0.3 gray levels of rounding noise (wide seeds 2
-    # and 3: 3 good frames fewer, the tip error median 1.10 -> 1.09 and 1.18 -> 1.26 px).
-    return cv2.sepFilter2D(image, -1, kx, ky, anchor=(ax, ay), borderType=cv2.BORDER_REPLICATE)
-
-
-def _keys_weights(f: float) -> np.ndarray:
-    """The weights of Keys' cubic convolution (a = -1/2, Catmull-Rom) at the taps -1, 0, 1, 2 px around a sample
-    ``f`` (0 <= f < 1) px past tap 0: interpolating, exact for quadratics."""
-    t = np.abs(np.arange(-1.0, 3.0) - f)
-    return np.where(t <= 1.0, 1.5 * t ** 3 - 2.5 * t ** 2 + 1.0, -0.5 * t ** 3 + 2.5 * t ** 2 - 4.0 * t + 2.0)
 
 
 # ----------------------------------------------------------------------------- coarse stage
@@ -1446,7 +1291,7 @@ class ViewCenterline:
     coarse : CoarseResult
     shift_px : (2,) array
         The frame's image shift against the background (camera jitter,
-        :func:`frame_shift`; zeros when not measured). Positions above are as
+        :func:`recon.jitter.frame_shift`; zeros when not measured). Positions above are as
         measured; subtract it for the calibrated (unjittered) camera.
     """
 
@@ -2270,5 +2115,5 @@ def extract_view(model: ViewModel, frame: np.ndarray, params: ViewParams, roi=No
         width_px=width[good], end_px=end_px, end_s=s_end, tangent_end=t_end, n_profiles=len(s),
         n_rejected=int(len(s) - good.size), coarse=coarse,
         shift_px=np.asarray(shift_px, np.float64) if shift_px is not None else (
-            frame_shift(model, frame) if params.jitter_compensation else np.zeros(2)),
+            frame_shift(model.shift, frame) if params.jitter_compensation else np.zeros(2)),
     )

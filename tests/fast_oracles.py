@@ -26,18 +26,19 @@ __all__ = [
 
 # ----------------------------------------------------------------------------- background
 def frame_shift(model, frame: np.ndarray, max_px: float = 3.0, iterations: int = 1) -> np.ndarray:
-    """:func:`recon.subpixel.frame_shift`: image shift (du, dv) px of a frame against the mean background."""
-    if model.shift_index is None:
+    """:func:`recon.jitter.frame_shift`: image shift (du, dv) px of a frame against the mean background
+    (``model``: a :class:`recon.jitter.ShiftModel` or None)."""
+    if model is None:
         return np.zeros(2)
-    D = model.shift_design
-    f = np.take(frame.reshape(-1), model.shift_index).astype(np.float64)
-    beta = np.linalg.solve(model.shift_gram, D.T @ f)
+    D = model.design
+    f = np.take(frame.reshape(-1), model.index).astype(np.float64)
+    beta = np.linalg.solve(model.gram, D.T @ f)
     r = f - D @ beta
     s = 1.4826 * float(np.median(np.abs(r))) + 1e-6
     bad = np.abs(r) > 4.0 * s
     if bad.any():
         Db = D[bad]
-        beta = np.linalg.solve(model.shift_gram - Db.T @ Db, D.T @ f - Db.T @ f[bad])
+        beta = np.linalg.solve(model.gram - Db.T @ Db, D.T @ f - Db.T @ f[bad])
     d = beta[4:] / beta[0]  # the shifted mean is scaled by the gain too
     for _ in range(iterations):
         # Gauss-Newton: regressors re-sampled at the shifted positions, for the remaining shift.
@@ -54,20 +55,20 @@ def frame_shift(model, frame: np.ndarray, max_px: float = 3.0, iterations: int =
 
 
 def _shifted_design(model, d: np.ndarray) -> np.ndarray:
-    """:attr:`ViewModel.shift_design` with the mean and its gradients taken at ``p - d`` (bilinear)."""
+    """:attr:`recon.jitter.ShiftModel.design` with the mean and its gradients taken at ``p - d`` (bilinear)."""
     H, W = model.shape
-    idx = model.shift_index
+    idx = model.index
     y, x = np.divmod(idx, W)
     u = np.clip(x - d[0], 0, W - 2.001)
     v = np.clip(y - d[1], 0, H - 2.001)
     u0 = np.floor(u).astype(np.int64)
     v0 = np.floor(v).astype(np.int64)
     fu, fv = u - u0, v - v0
-    m = model.stack[:, 0]
+    m = model.mean
     base = v0 * W + u0
     m00, m01, m10, m11 = m[base], m[base + 1], m[base + W], m[base + W + 1]
     mv = (1 - fv) * ((1 - fu) * m00 + fu * m01) + fv * ((1 - fu) * m10 + fu * m11)
-    D = model.shift_design.copy()
+    D = model.design.copy()
     D[:, 0] = mv
     D[:, 2] = (x / W - 0.5) * mv
     D[:, 3] = (y / H - 0.5) * mv

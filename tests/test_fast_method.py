@@ -15,18 +15,20 @@ from drawn_tubes import draw_tube, robot_backbone
 
 from recon import _kernels
 from recon import fast as fast_module
+from recon import jitter
 from recon import subpixel as subpixel_module
 from recon.camera import Camera
 from recon.epipolar import EpipolarFrame, align_dp, monotonic, triangulate_rays
 from recon.errors import FrameError
 from recon.fast import FastParams, FastReconstructor, _project, _rays, _rays_in_python, prepare_fast
 from recon.geometry import look_at
+from recon.jitter import frame_shift
 from recon.methods import get_method, prepare
 from recon.metrics import backbone_errors, point_to_polyline_distances
 from recon.params import params_from_dict
 from recon.rigcal import RigCalibration
 from recon.subpixel import (UniformSpline, ViewParams, _Fit, _Fitter, _near, _tip_along_final_curve, coarse_abs_difference, coarse_path, extract_view, fit_curve,
-                            frame_coefficients, frame_shift, prepare_view)
+                            frame_coefficients, prepare_view)
 
 # Frames of scenes/paper.toml: inner tube 5 mm out, 45 mm out (straight then curved), and rotated.
 FRAMES = (0, 9, 15)
@@ -640,8 +642,8 @@ def test_the_jitter_of_a_brick_backdrop_is_measured_both_ways():
     model = prepare_fast(rig, backgrounds)
     for n in rig.names:
         frame = noisy(draw_tube(_bricks(levels, du, dv), jittered[n], pts, radii, level=60.0))
-        np.testing.assert_allclose(frame_shift(model.views[n], frame), [du, dv], atol=0.1)
-        np.testing.assert_array_equal(frame_shift(model.views[n], np.zeros_like(frame)), [0.0, 0.0])
+        np.testing.assert_allclose(frame_shift(model.views[n].shift, frame), [du, dv], atol=0.1)
+        np.testing.assert_array_equal(frame_shift(model.views[n].shift, np.zeros_like(frame)), [0.0, 0.0])
 
 
 @pytest.mark.parametrize("shift", [(2.0, -1.0), (-3.0, 3.0), (0.5, 0.25), (-1.3, 2.7), (0.0, -0.6)])
@@ -652,12 +654,12 @@ def test_shifted_reads_the_image_at_its_pixels_plus_the_shift(shift):
     du, dv = shift
     yy, xx = np.mgrid[0:40, 0:50].astype(np.float64)
     surface = lambda x, y: 0.02 * x * x - 0.03 * x * y + 0.5 * y + 3.0
-    out = subpixel_module.shifted(surface(xx, yy).astype(np.float32), shift)
+    out = jitter.shifted(surface(xx, yy).astype(np.float32), shift)
     np.testing.assert_allclose(out[4:-4, 4:-4], surface(xx + du, yy + dv)[4:-4, 4:-4], atol=1e-3)
     if du == int(du) and dv == int(dv):
         img = rng.integers(0, 256, (40, 50), dtype=np.uint8)
         rows, cols = np.clip(np.arange(40) + int(dv), 0, 39), np.clip(np.arange(50) + int(du), 0, 49)
-        np.testing.assert_array_equal(subpixel_module.shifted(img, shift), img[rows][:, cols])
+        np.testing.assert_array_equal(jitter.shifted(img, shift), img[rows][:, cols])
 
 
 def test_a_frame_jittered_beyond_its_background_frames_is_moved_back():
@@ -704,7 +706,7 @@ def test_frames_of_a_plain_backdrop_are_used_as_they_are(paper_scene, paper_fram
             frame = shot.images[name]
             steady, shift, moved = subpixel_module.steady_frame(vm, frame)
             assert not moved and steady is frame
-            np.testing.assert_array_equal(shift, frame_shift(vm, frame))
+            np.testing.assert_array_equal(shift, frame_shift(vm.shift, frame))
 
 
 def test_frame_shift_and_coefficients_agree_with_their_oracles(paper_scene, paper_frames):
@@ -714,9 +716,9 @@ def test_frame_shift_and_coefficients_agree_with_their_oracles(paper_scene, pape
     model = prepare_fast(paper_scene.rig, backgrounds)
     for shot in shots:
         for name, vm in model.views.items():
-            assert vm.shift_index is not None
+            assert vm.shift is not None
             frame = shot.images[name]
-            np.testing.assert_allclose(frame_shift(vm, frame), O.frame_shift(vm, frame), atol=1e-6)
+            np.testing.assert_allclose(frame_shift(vm.shift, frame), O.frame_shift(vm.shift, frame), atol=1e-6)
             np.testing.assert_allclose(frame_coefficients(vm, frame), O.frame_coefficients(vm, frame), rtol=1e-4, atol=1e-4)
 
 
@@ -729,10 +731,10 @@ def test_the_shift_patches_hold_the_mean_background_around_each_pixel(paper_scen
     for vm in model.views.values():
         H, W = vm.shape
         mean = vm.stack[:, 0].reshape(H, W)
-        y, x = np.divmod(vm.shift_index, W)
-        assert vm.shift_patches.shape == (len(y), 8, 8)
+        y, x = np.divmod(vm.shift.index, W)
+        assert vm.shift.patches.shape == (len(y), 8, 8)
         for k in range(0, len(y), 97):
-            np.testing.assert_array_equal(vm.shift_patches[k], mean[y[k] - 3:y[k] + 5, x[k] - 3:x[k] + 5])
+            np.testing.assert_array_equal(vm.shift.patches[k], mean[y[k] - 3:y[k] + 5, x[k] - 3:x[k] + 5])
 
 def test_edge_kernel_agrees_with_its_oracle():
     """Random profiles (bands of either polarity, noise, none at all): the same edges, rims and refusals."""
