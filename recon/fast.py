@@ -95,6 +95,18 @@ class FastParams:
         Spacing of the output backbone points (mm).
     max_ray_gap_mm : float
         Matched rays that pass farther apart than this are dropped.
+    min_end_conditioning : float
+        Where the tube's last stretch runs near an epipolar plane (the
+        conditioning, the sine between the curve and the epipolar lines, under
+        this in either view), the epipolar angle hardly changes along it and a
+        fraction of a pixel across the tube moves the match far along it: one
+        view's samples stall while the other's run on, and the depth wanders
+        off between measured points (wide-3-48 frame 1: 15 mm before a right
+        tip, 14 px footprints off, reported ``ok``). That stretch is paired by
+        arc fraction instead, from its start to the two views' last samples
+        (the tip, one point): every point stays on both views' curves and the
+        depth goes evenly from the measured start to the measured tip
+        (:func:`_end_by_fraction`).
     max_base_gap_mm : float
         The backbone is continued back to the base plane only if its first
         point is at most this far from it (mm).
@@ -161,6 +173,7 @@ class FastParams:
     knot_mm: float = 4.0
     output_step_mm: float = 0.5
     max_ray_gap_mm: float = 1.0
+    min_end_conditioning: float = 0.2
     max_base_gap_mm: float = 6.0
     retry_min_dn: float = 3.0
     max_tip_mismatch_px: float = 8.0
@@ -505,8 +518,9 @@ def _strictly_increasing(x: np.ndarray) -> np.ndarray:
     return x + np.arange(x.size) * 1e-12
 
 
-def _correspond(a: _ViewSamples, b: _ViewSamples, tol: float):
-    """Matched (s_a, s_b, dir_a, dir_b, cond_a, cond_b) and the method used."""
+def _correspond(a: _ViewSamples, b: _ViewSamples, tol: float, min_end_cond: float = 0.0):
+    """Matched (s_a, s_b, dir_a, dir_b, cond_a, cond_b) and the method used; the trailing stretch conditioned
+    under ``min_end_cond`` paired by arc fraction (:func:`_end_by_fraction`)."""
     ma, mb = monotonic(a.phi, tol), monotonic(b.phi, tol)
     if ma != 0 and ma == mb:
         pa = _strictly_increasing(ma * a.phi)
@@ -522,7 +536,7 @@ def _correspond(a: _ViewSamples, b: _ViewSamples, tol: float):
         db = _unit3(interp_rows(q, pb, b.dirs))
         ca = np.interp(q, pa, a.cond)
         cb = np.interp(q, pb, b.cond)
-        return sa, sb, da, db, ca, cb, "epipolar-angle"
+        return _end_by_fraction(a, b, (sa, sb, da, db, ca, cb), min_end_cond) + ("epipolar-angle",)
     # Not monotonic in both views: ordered alignment.
     ka = np.unique(np.linspace(0, a.s.size - 1, min(a.s.size, 160)).round().astype(int))
     kb = np.unique(np.linspace(0, b.s.size - 1, min(b.s.size, 160)).round().astype(int))
@@ -531,6 +545,23 @@ def _correspond(a: _ViewSamples, b: _ViewSamples, tol: float):
     ia, ib = align_dp(a.phi[ka], b.phi[kb], fa, fb, phi_scale=4.0 * tol)
     ia, ib = ka[ia], kb[ib]
     return a.s[ia], b.s[ib], _unit3(a.dirs[ia]), _unit3(b.dirs[ib]), a.cond[ia], b.cond[ib], "ordered-dp"
+
+
+def _end_by_fraction(a: _ViewSamples, b: _ViewSamples, matched: tuple, min_cond: float) -> tuple:
+    """The matched ``(s_a, s_b, dir_a, dir_b, cond_a, cond_b)`` with the trailing run conditioned under
+    ``min_cond`` (in either view) paired by arc fraction from its first match to both views' last samples
+    (``FastParams.min_end_conditioning``); unchanged where the last match is conditioned well enough."""
+    sa, sb = matched[0], matched[1]
+    low = np.minimum(matched[4], matched[5]) < min_cond
+    if sa.size < 2 or not low[-1]:
+        return matched
+    k0 = max(0, sa.size - int(np.argmin(low[::-1])) - 1) if not low.all() else 0
+    n = max(2, int(np.sum(a.s > sa[k0])), int(np.sum(b.s > sb[k0])))
+    f = np.linspace(0.0, 1.0, n + 1)[1:]
+    ta, tb = sa[k0] + f * (a.s[-1] - sa[k0]), sb[k0] + f * (b.s[-1] - sb[k0])
+    new = (ta, tb, _unit3(interp_rows(ta, a.s, a.dirs)), _unit3(interp_rows(tb, b.s, b.dirs)),
+           np.interp(ta, a.s, a.cond), np.interp(tb, b.s, b.cond))
+    return tuple(np.concatenate([old[: k0 + 1], add]) for old, add in zip(matched, new))
 
 
 #: Where a view's curve is not monotonic in the epipolar angle the tube folds across an epipolar plane:
@@ -944,7 +975,7 @@ class _Matched:
 
 def _matched_curve(model: FastModel, params: FastParams, sa_: _ViewSamples, sb_: _ViewSamples, tol: float) -> _Matched:
     """Correspond, triangulate, drop rays that miss each other, fit the weighted spline (:class:`_Matched`)."""
-    s_a, s_b, da, db, ca, cb, how = _correspond(sa_, sb_, tol)
+    s_a, s_b, da, db, ca, cb, how = _correspond(sa_, sb_, tol, params.min_end_conditioning)
     X, gap = triangulate_rays(model.epipolar.center_a, da, model.epipolar.center_b, db)
     keep = gap < params.max_ray_gap_mm
     if keep.sum() < 6:

@@ -573,6 +573,44 @@ def test_alignment_along_an_epipolar_plane():
     assert np.corrcoef(ia[stall], ib[stall])[0, 1] > 0.95
 
 
+def _samples_of(model, name, points_mm, across_px):
+    """A view's correspondence samples (every 4 px) of a 3D curve, moved across the curve by ``across_px(f)`` px
+    at the fraction ``f`` of its length."""
+    uv = _project(model.rig[name], points_mm)[0]
+    s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(uv, axis=0), axis=1))]
+    k = np.linspace(0.0, s[-1], int(s[-1] / 4.0) + 1)
+    uvk = np.stack([np.interp(k, s, uv[:, 0]), np.interp(k, s, uv[:, 1])], axis=1)
+    t = np.gradient(uvk, axis=0)
+    uvk = uvk + across_px(k / k[-1])[:, None] * np.stack([-t[:, 1], t[:, 0]], 1) / np.linalg.norm(t, axis=1)[:, None]
+    d, phi, cond = _rays(model, name, uvk)
+    return fast_module._ViewSamples(s=k, uv=uvk, dirs=d, phi=phi, cond=cond)
+
+
+def test_a_last_stretch_along_an_epipolar_plane_is_paired_by_arc_fraction(synthetic):
+    """The robot's last 25 mm run along the baseline, in one epipolar plane, and one view's centres there wander
+    0.3 px across the tube: matched by epipolar angle, one view's samples stall while the other's run on and
+    the triangulated points leave the tube by several mm; paired by arc fraction from the last well
+    conditioned match to both ends, they stay within half a millimetre of it."""
+    rig, backgrounds, _ = synthetic
+    model = prepare_fast(rig, backgrounds)
+    along = np.array([0.0, 1.0, 1.0]) / np.sqrt(2.0)  # the baseline of the side and top cameras
+    centre = np.array([45.0, 0.0, 0.0]) + 15.0 * along
+    pts = np.concatenate([np.linspace(0.0, 40.0, 81)[:, None] * [1.0, 0.0, 0.0] + [5.0, 0.0, 0.0],
+                          [centre + 15.0 * (np.sin(a) * np.array([1.0, 0.0, 0.0]) - np.cos(a) * along)
+                           for a in np.linspace(0.0, np.pi / 2, 40)[1:]]])
+    pts = np.concatenate([pts, pts[-1] + np.linspace(0.5, 25.0, 50)[:, None] * along])
+    a, b = model.pair
+    sa = _samples_of(model, a, pts, lambda f: 0.0 * f)
+    sb = _samples_of(model, b, pts, lambda f: 0.3 * np.sin(40.0 * f) * (f > 0.7))
+    off = {}
+    for min_cond in (0.0, FastParams().min_end_conditioning):
+        s_a, s_b, da, db, ca, cb, how = fast_module._correspond(sa, sb, 2.0 / rig[a].K[0, 0], min_cond)
+        X, _ = triangulate_rays(model.epipolar.center_a, da, model.epipolar.center_b, db)
+        assert how == "epipolar-angle" and np.all(np.diff(s_a) > 0) and np.all(np.diff(s_b) >= 0)
+        off[min_cond] = float(point_to_polyline_distances(X, pts).max())
+    assert off[0.0] > 3.0 and off[FastParams().min_end_conditioning] < 0.5, off
+
+
 def test_state_reset():
     rec = FastReconstructor.__new__(FastReconstructor)
     rec._prev, rec._roi = object(), {"side": (0, 0, 1, 1)}
