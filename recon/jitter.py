@@ -17,7 +17,7 @@ import numpy as np
 
 from ._kernels import SHIFT_PATCH, SHIFT_PATCH_BACK, frame_shift_nb
 
-__all__ = ["ShiftModel", "prepare_shift", "frame_shift", "shifted"]
+__all__ = ["ShiftModel", "pixel_noise", "prepare_shift", "frame_shift", "shifted"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -54,6 +54,34 @@ class ShiftModel:
     gram: np.ndarray
     patches: np.ndarray
     texture_dn_per_px: float
+
+
+def pixel_noise(frames: np.ndarray) -> float:
+    """Pixel noise (gray levels, at least 0.5) from differences of consecutive background frames.
+
+    Robust (medians of absolute values), and differences of horizontal
+    neighbours of the frame-to-frame difference cancel its smooth part (gain,
+    ramps): 4 sigma^2 of pixel noise remain. The edges a shift is measured on
+    must be steeper than a few times this (:func:`prepare_shift`).
+
+    Parameters
+    ----------
+    frames : (N, H, W) array
+        Background frames (gray levels), N >= 1.
+
+    Returns
+    -------
+    float
+        The noise's standard deviation (gray levels); 1 from a single frame.
+    """
+    H, W = frames.shape[1:]
+    sub = np.arange(0, H * W, 61)
+    flat = frames.reshape(len(frames), -1)
+    sub = sub[(sub % W) < W - 1]
+    dd = [(flat[i + 1, sub + 1].astype(np.float32) - flat[i, sub + 1]) - (flat[i + 1, sub].astype(np.float32) - flat[i, sub])
+          for i in range(min(len(frames) - 1, 8))]
+    sigma_pix = float(np.median([1.4826 * np.median(np.abs(d)) for d in dd])) / 2.0 if dd else 1.0
+    return max(sigma_pix, 0.5)
 
 
 def prepare_shift(mean_img: np.ndarray, sigma_pix: float, n: int = 3000, border: int = 8) -> ShiftModel | None:

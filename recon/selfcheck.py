@@ -8,11 +8,15 @@ that shares nothing with the method's silhouette:
 
 * **Foreground.** Per view, the background frames are brought to one lighting
   (a gain and an offset, each with a ramp across the image: :class:`Lighting`) and
-  reduced to a per-pixel band ``[erode(min), dilate(max)]`` over a small
-  window (camera jitter of a pixel moves every texture edge), widened by
-  ``noise_sigmas`` of the background's noise and ``margin_dn`` gray levels.
-  A frame, brought to the background mean's lighting the same way (lighting
-  varies by +-20 %, with ramps), is foreground where it leaves that band.
+  reduced to a per-pixel band ``[min, max]``, widened by ``noise_sigmas`` of
+  the background's noise and ``margin_dn`` gray levels. Camera jitter moves
+  every edge of a textured backdrop: where the backdrop has edges to measure
+  it on, every frame is moved back by its image shift first
+  (:mod:`recon.jitter`) and the band widened by the gradient times
+  ``aligned_residual_px``; elsewhere the band is eroded and dilated over a
+  small window. A frame, brought to the background mean's lighting the same
+  way (lighting varies by +-20 %, with ramps), is foreground where it leaves
+  that band.
 * **Reprojection.** The backbone is projected into each view
   (:meth:`recon.camera.Camera.project`, with distortion) every ~1 px along
   the curve, with the tube radius in pixels from the focal length and depth.
@@ -45,6 +49,7 @@ import cv2
 import numpy as np
 
 from .geometry import arc_length, points_at_arc_length, resample_polyline, transform_points
+from .jitter import ShiftModel, frame_shift, pixel_noise, prepare_shift, shifted
 from .morphology import near_mask
 from .paper import behind_base_pixels
 from .rigcal import RigCalibration
@@ -61,9 +66,21 @@ class SelfCheckParams:
     ----------
     jitter_window_px : int
         Half-size of the window over which the background's per-pixel minimum
-        is eroded and maximum dilated (px). Camera jitter of up to 1 px moves
-        every edge of a textured backdrop by that much; 1 covers it, since the
-        background frames' own jitter already widens the band.
+        is eroded and maximum dilated (px) where the frames are not moved
+        back (a backdrop with too few edges to measure the jitter on). Camera
+        jitter of up to 1 px moves every edge of a textured backdrop by that
+        much; 1 covers it, since the background frames' own jitter already
+        widens the band.
+    align_jitter, aligned_residual_px : bool, float
+        Where the backdrop has edges in two directions (:func:`recon.jitter.prepare_shift`)
+        and ``align_jitter`` is set, the background frames and every judged frame are moved back by their
+        image shift, and the band is widened by the mean background's gradient
+        (gray levels per px) times this instead of the window: the shift's
+        error and the resampling's. Over fabric and fine noise the window made
+        the band the texture's whole local range, 65-90 gray levels wide, and
+        a faint tube was foreground on 6-30 % of its length (wide-2-22 frame
+        2, wide-2-23 frame 1: good frames flagged, 42-50 % of the tube off
+        foreground); aligned, 33-45 levels and 42-66 %.
     noise_sigmas : float
         How many standard deviations of the background's temporal noise (per
         pixel, smoothed over 5x5 px) a pixel must lie beyond the band to be
@@ -263,6 +280,8 @@ class SelfCheckParams:
     """
 
     jitter_window_px: int = 1
+    align_jitter: bool = True
+    aligned_residual_px: float = 0.2
     noise_sigmas: float = 3.0
     margin_dn: float = 4.0
     explain_tolerance_px: float = 3.0
@@ -311,7 +330,7 @@ class SelfCheckParams:
     def __post_init__(self):
         if int(self.jitter_window_px) != self.jitter_window_px or self.jitter_window_px < 0:
             raise ValueError("SelfCheckParams: jitter_window_px must be an integer >= 0")
-        for name in ("noise_sigmas", "margin_dn", "explain_tolerance_px", "on_foreground_tolerance_px", "profile_search_px",
+        for name in ("aligned_residual_px", "noise_sigmas", "margin_dn", "explain_tolerance_px", "on_foreground_tolerance_px", "profile_search_px",
                      "min_visible_px", "min_profile_fraction", "min_section_width_share", "section_width_window_px"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"SelfCheckParams: {name} must be >= 0")
@@ -332,6 +351,7 @@ class _ViewModel:
     behind: np.ndarray | None  # (H, W) bool, behind the robot base (ignored), or None
     binary: bool = False  # background frames are a mask (only 0 and 1, or only 0 and 255)
     keep: np.ndarray | None = None  # (H, W) uint8, 0 behind the robot base, 255 elsewhere; None: nothing behind
+    shift: ShiftModel | None = None  # the backdrop's edges a frame's jitter is measured on; None: frames as they come
 
 
 @dataclass(frozen=True, eq=False)
@@ -630,13 +650,20 @@ def prepare_selfcheck(rig: RigCalibration, background_frames: dict, params: Self
         binary = bool(stack.max() <= 1 or np.all((stack == 0) | (stack == 255)))
         if binary:
             stack = np.where(stack > 0, 255, 0).astype(np.uint8)
+        shift, shifts = _jitter_model(stack) if params.align_jitter and not binary else (None, None)
+        if shift is not None:
+            stack = np.stack([shifted(f.astype(np.float32), d) for f, d in zip(stack, shifts)])
         f = _normalized_stack(stack)
         mean = f.mean(axis=0)
         # Temporal noise, smoothed: 6 frames give a poor per-pixel estimate.
         sigma = np.sqrt(cv2.blur(f.var(axis=0), (5, 5)))
         margin = (params.noise_sigmas * sigma + params.margin_dn).astype(np.float32)
-        lo = cv2.erode(f.min(axis=0), kernel) - margin if w else f.min(axis=0) - margin
-        hi = cv2.dilate(f.max(axis=0), kernel) + margin if w else f.max(axis=0) + margin
+        if shift is not None:
+            margin += np.float32(params.aligned_residual_px) * _gradient_dn_per_px(mean)
+            lo, hi = f.min(axis=0) - margin, f.max(axis=0) + margin
+        else:
+            lo = cv2.erode(f.min(axis=0), kernel) - margin if w else f.min(axis=0) - margin
+            hi = cv2.dilate(f.max(axis=0), kernel) + margin if w else f.max(axis=0) + margin
         idx = behind_base_pixels(cam, rig.base_point_world_mm, rig.insertion_axis_world, 0.0)
         behind = None
         if idx is not None:
@@ -644,8 +671,32 @@ def prepare_selfcheck(rig: RigCalibration, background_frames: dict, params: Self
             behind[idx] = True
             behind = behind.reshape(cam.height, cam.width)
         keep = None if behind is None else np.where(behind, 0, 255).astype(np.uint8)
-        views[name] = _ViewModel(mean.astype(np.float32), lo.astype(np.float32), hi.astype(np.float32), behind, binary, keep)
+        views[name] = _ViewModel(mean.astype(np.float32), lo.astype(np.float32), hi.astype(np.float32), behind, binary, keep,
+                                 shift)
     return SelfCheckModel(rig, views)
+
+
+def _jitter_model(stack: np.ndarray) -> tuple:
+    """``(model, shifts)``: the edges of the background frames' mean that a frame's jitter is measured on
+    (:func:`recon.jitter.prepare_shift`) and the frames' shifts (N, 2) px; ``(None, None)`` where there are too
+    few, or where the backdrop's flicker under the frames' jitter (its steepest gradients times the largest
+    shift) stays under the pixel noise: there the window holds it and resampling would only blur (the paper
+    scene: a plain backdrop with a few static edges)."""
+    noise = pixel_noise(stack)
+    model = prepare_shift(stack.astype(np.float32).mean(axis=0), noise)
+    if model is None:
+        return None, None
+    shifts = np.array([frame_shift(model, f) for f in stack])
+    if float(np.abs(shifts).max()) * model.texture_dn_per_px < noise:
+        return None, None
+    return model, shifts
+
+
+def _gradient_dn_per_px(image: np.ndarray) -> np.ndarray:
+    """(H, W) float32 gradient magnitude (gray levels per px, 3x3 Sobel)."""
+    gx = cv2.Sobel(image, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(image, cv2.CV_32F, 0, 1, ksize=3)
+    return cv2.magnitude(gx, gy) / np.float32(8.0)
 
 
 def foreground_roi(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.ndarray | None = None) -> np.ndarray:
@@ -655,7 +706,7 @@ def foreground_roi(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.n
     ----------
     view : the camera's background model
     gray : (H, W) uint8
-        The frame, full size.
+        The frame, full size; moved back by its jitter first where the view measures it.
     roi : (x0, y0, x1, y1)
         Pixel bounds, x1 and y1 exclusive.
     exclude : (h, w) bool, optional
@@ -664,8 +715,10 @@ def foreground_roi(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.n
     Returns
     -------
     (h, w) bool
-        Foreground; False behind the robot base.
+        Foreground (in the background's pixel frame); False behind the robot base.
     """
+    if view.shift is not None:
+        gray = shifted(gray, frame_shift(view.shift, gray))  # onto the background frames, moved back alike
     return _foreground_u8(view, gray, roi, None if exclude is None else np.asarray(exclude, np.uint8))[0] > 0
 
 
@@ -1511,6 +1564,8 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
             raise ValueError(f"{name}: image is {gray.shape[1]}x{gray.shape[0]} but the camera is {cam.width}x{cam.height}")
         if view.binary and gray.max() <= 1:
             gray = gray * np.uint8(255)  # a 0/1 mask
+        if view.shift is not None:
+            gray = shifted(gray, frame_shift(view.shift, gray))  # onto the background frames, moved back alike
         others = [model.rig[o] for o in model.rig.names if o != name]
         figures[name] = _judge_view(view, cam, gray, pts, (r_out, r_in), params, others, model.rig.base_point_world_mm)
     shape = {"behind_base_px": _behind_base_px(model.rig, pts), "kink_px": _kink_px(model.rig, pts, r_in, params),

@@ -71,7 +71,7 @@ from ._kernels import (
 from .background import no_picture, to_gray
 from .errors import FrameError
 from .halflit import BASE_STRETCH, half_lit_moves, lit_side
-from .jitter import ShiftModel, frame_shift, prepare_shift, shifted
+from .jitter import ShiftModel, frame_shift, pixel_noise, prepare_shift, shifted
 from .geometry import resample_arc
 
 __all__ = [
@@ -477,7 +477,7 @@ def prepare_view(name, eigen, camera, base_world_mm, axis_world, outer_radius_mm
         width_at="at the robot base" if np.array_equal(seen_at, np.asarray(base_world_mm, float)) else "where the robot enters the image",
     )
     frames = to_gray(background_frames)
-    sigma_pix = _pixel_noise(frames, H, W)
+    sigma_pix = pixel_noise(frames)
     sigma_c = sigma_pix / 2.0  # a coarse pixel averages 2x2 pixels
     floor = max(threshold_min_dn, threshold_sigma * sigma_c)
     lam = np.maximum(np.asarray(eigen.eigenvalues, float), 1e-9)
@@ -525,22 +525,6 @@ def _image_axis(camera, base_world_mm, axis_world) -> tuple:
     axis_px = tip_uv[0] - base_uv[0]
     axis_px /= max(np.linalg.norm(axis_px), 1e-9)
     return base_uv, axis_px
-
-
-def _pixel_noise(frames: np.ndarray, H: int, W: int) -> float:
-    """Pixel noise (gray levels, at least 0.5) from differences of consecutive (N, H, W) background frames.
-
-    Robust (medians of absolute values), and differences of horizontal
-    neighbours of the frame-to-frame difference cancel its smooth part (gain,
-    ramps): 4 sigma^2 of pixel noise remain.
-    """
-    sub = np.arange(0, H * W, 61)
-    flat = frames.reshape(len(frames), -1)
-    sub = sub[(sub % W) < W - 1]
-    dd = [(flat[i + 1, sub + 1].astype(np.float32) - flat[i, sub + 1]) - (flat[i + 1, sub].astype(np.float32) - flat[i, sub])
-          for i in range(min(len(frames) - 1, 8))]
-    sigma_pix = float(np.median([1.4826 * np.median(np.abs(d)) for d in dd])) / 2.0 if dd else 1.0
-    return max(sigma_pix, 0.5)
 
 
 def _coarse_thresholds(model: ViewModel, frames: np.ndarray, jitter_margin: float, floor: float) -> np.ndarray:

@@ -155,10 +155,22 @@ def test_jitter_on_a_textured_backdrop_is_not_foreground():
     model = prepare_selfcheck(rig, bg)
     frame = shot(1.0, -0.7, gain=1.2)
     fg = foreground_roi(model.views["side"], frame, (0, 0, w, h))
-    assert fg.mean() < 0.002
-    # Without the jitter window the same shift makes texture edges foreground: the window is what helps.
-    fg0 = foreground_roi(prepare_selfcheck(rig, bg, SelfCheckParams(jitter_window_px=0)).views["side"], frame, (0, 0, w, h))
-    assert fg0.mean() > 5 * max(fg.mean(), 1e-4)
+    assert model.views["side"].shift is not None and fg.mean() < 0.002
+    # Not moved back, the jitter window holds the shift; without it texture edges are foreground.
+    unaligned = {k: prepare_selfcheck(rig, bg, SelfCheckParams(align_jitter=False, jitter_window_px=k)).views["side"]
+                 for k in (0, 1)}
+    fg1, fg0 = (foreground_roi(unaligned[k], frame, (0, 0, w, h)) for k in (1, 0))
+    assert fg1.mean() < 0.002
+    assert fg0.mean() > 5 * max(fg.mean(), fg1.mean(), 1e-4)
+    # A faint tube (12 gray levels) across the texture: moved back, the band is narrow enough to show nearly half
+    # of it (46 %); the window's band is the texture's local range and shows a twentieth (4 %).
+    tube = np.zeros((h, w), np.float32)
+    cv2.line(tube, (20, 60), (280, 140), 12.0, thickness=3)
+    faint = np.clip(shot(1.0, -0.7).astype(np.float32) + tube, 0, 255).astype(np.uint8)
+    on = tube > 0
+    seen = {name: float(foreground_roi(v, faint, (0, 0, w, h))[on].mean())
+            for name, v in (("aligned", model.views["side"]), ("window", unaligned[1]))}
+    assert seen["aligned"] > 0.35 and seen["aligned"] > 5 * seen["window"], seen
 
 
 def _ramp(h: int, w: int, gain: float, slope_u: float, slope_v: float) -> np.ndarray:
