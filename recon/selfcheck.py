@@ -630,8 +630,6 @@ def prepare_selfcheck(rig: RigCalibration, background_frames: dict, params: Self
         One line naming the camera: missing, wrong size, fewer than 2 frames.
     """
     views = {}
-    w = int(params.jitter_window_px)
-    kernel = np.ones((2 * w + 1, 2 * w + 1), np.uint8)
     for name in rig.names:
         cam = rig[name]
         if name not in background_frames:
@@ -650,20 +648,7 @@ def prepare_selfcheck(rig: RigCalibration, background_frames: dict, params: Self
         binary = bool(stack.max() <= 1 or np.all((stack == 0) | (stack == 255)))
         if binary:
             stack = np.where(stack > 0, 255, 0).astype(np.uint8)
-        shift, shifts = _jitter_model(stack) if params.align_jitter and not binary else (None, None)
-        if shift is not None:
-            stack = np.stack([shifted(f.astype(np.float32), d) for f, d in zip(stack, shifts)])
-        f = _normalized_stack(stack)
-        mean = f.mean(axis=0)
-        # Temporal noise, smoothed: 6 frames give a poor per-pixel estimate.
-        sigma = np.sqrt(cv2.blur(f.var(axis=0), (5, 5)))
-        margin = (params.noise_sigmas * sigma + params.margin_dn).astype(np.float32)
-        if shift is not None:
-            margin += np.float32(params.aligned_residual_px) * _gradient_dn_per_px(mean)
-            lo, hi = f.min(axis=0) - margin, f.max(axis=0) + margin
-        else:
-            lo = cv2.erode(f.min(axis=0), kernel) - margin if w else f.min(axis=0) - margin
-            hi = cv2.dilate(f.max(axis=0), kernel) + margin if w else f.max(axis=0) + margin
+        mean, lo, hi, shift = _band(stack, binary, params)
         idx = behind_base_pixels(cam, rig.base_point_world_mm, rig.insertion_axis_world, 0.0)
         behind = None
         if idx is not None:
@@ -674,6 +659,28 @@ def prepare_selfcheck(rig: RigCalibration, background_frames: dict, params: Self
         views[name] = _ViewModel(mean.astype(np.float32), lo.astype(np.float32), hi.astype(np.float32), behind, binary, keep,
                                  shift)
     return SelfCheckModel(rig, views)
+
+
+def _band(stack: np.ndarray, binary: bool, params: SelfCheckParams) -> tuple:
+    """``(mean, lo, hi, shift)``: the background frames' (N, H, W) mean and foreground band (gray levels, at the
+    mean's lighting) and the :class:`~recon.jitter.ShiftModel` judged frames are moved back by (None: they are
+    not; ``SelfCheckParams.jitter_window_px``, ``align_jitter``)."""
+    shift, shifts = _jitter_model(stack) if params.align_jitter and not binary else (None, None)
+    if shift is not None:
+        stack = np.stack([shifted(f.astype(np.float32), d) for f, d in zip(stack, shifts)])
+    f = _normalized_stack(stack)
+    mean = f.mean(axis=0)
+    # Temporal noise, smoothed: 6 frames give a poor per-pixel estimate.
+    sigma = np.sqrt(cv2.blur(f.var(axis=0), (5, 5)))
+    margin = (params.noise_sigmas * sigma + params.margin_dn).astype(np.float32)
+    lo, hi = f.min(axis=0), f.max(axis=0)
+    w = int(params.jitter_window_px)
+    if shift is not None:
+        margin += np.float32(params.aligned_residual_px) * _gradient_dn_per_px(mean)
+    elif w:
+        kernel = np.ones((2 * w + 1, 2 * w + 1), np.uint8)
+        lo, hi = cv2.erode(lo, kernel), cv2.dilate(hi, kernel)
+    return mean, lo - margin, hi + margin, shift
 
 
 def _jitter_model(stack: np.ndarray) -> tuple:
