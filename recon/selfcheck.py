@@ -352,6 +352,7 @@ class _ViewModel:
     binary: bool = False  # background frames are a mask (only 0 and 1, or only 0 and 255)
     keep: np.ndarray | None = None  # (H, W) uint8, 0 behind the robot base, 255 elsewhere; None: nothing behind
     shift: ShiftModel | None = None  # the backdrop's edges a frame's jitter is measured on; None: frames as they come
+    contrast_half: np.ndarray | None = None  # (H, W) float32, the unmoved band's half-width where frames are moved
 
 
 @dataclass(frozen=True, eq=False)
@@ -648,7 +649,7 @@ def prepare_selfcheck(rig: RigCalibration, background_frames: dict, params: Self
         binary = bool(stack.max() <= 1 or np.all((stack == 0) | (stack == 255)))
         if binary:
             stack = np.where(stack > 0, 255, 0).astype(np.uint8)
-        mean, lo, hi, shift = _band(stack, binary, params)
+        mean, lo, hi, shift, contrast_half = _band(stack, binary, params)
         idx = behind_base_pixels(cam, rig.base_point_world_mm, rig.insertion_axis_world, 0.0)
         behind = None
         if idx is not None:
@@ -657,30 +658,45 @@ def prepare_selfcheck(rig: RigCalibration, background_frames: dict, params: Self
             behind = behind.reshape(cam.height, cam.width)
         keep = None if behind is None else np.where(behind, 0, 255).astype(np.uint8)
         views[name] = _ViewModel(mean.astype(np.float32), lo.astype(np.float32), hi.astype(np.float32), behind, binary, keep,
-                                 shift)
+                                 shift, contrast_half)
     return SelfCheckModel(rig, views)
 
 
 def _band(stack: np.ndarray, binary: bool, params: SelfCheckParams) -> tuple:
-    """``(mean, lo, hi, shift)``: the background frames' (N, H, W) mean and foreground band (gray levels, at the
-    mean's lighting) and the :class:`~recon.jitter.ShiftModel` judged frames are moved back by (None: they are
-    not; ``SelfCheckParams.jitter_window_px``, ``align_jitter``)."""
+    """``(mean, lo, hi, shift, contrast_half)``: the background frames' (N, H, W) mean and foreground band (gray
+    levels, at the mean's lighting), the :class:`~recon.jitter.ShiftModel` judged frames are moved back by, and
+    the half-width contrast is measured in (None: the band's own; ``SelfCheckParams.align_jitter``)."""
+    raw = _normalized_stack(stack)
     shift, shifts = _jitter_model(stack) if params.align_jitter and not binary else (None, None)
-    if shift is not None:
-        stack = np.stack([shifted(f.astype(np.float32), d) for f, d in zip(stack, shifts)])
-    f = _normalized_stack(stack)
+    if shift is None:
+        return (raw.mean(axis=0),) + _window_band(raw, params) + (None, None)
+    f = _normalized_stack(np.stack([shifted(s.astype(np.float32), d) for s, d in zip(stack, shifts)]))
     mean = f.mean(axis=0)
-    # Temporal noise, smoothed: 6 frames give a poor per-pixel estimate.
+    margin = _noise_margin(f, params) + np.float32(params.aligned_residual_px) * _gradient_dn_per_px(mean)
+    # Contrast stays in the unmoved band's units: the tip probe's and the contrast support's limits were set
+    # there, and in the narrower band's the backdrop just past a tip read as tube (wide-2-39 frame 0, a brick
+    # joint just past a right tip: 1.4 over the 1.3 limit).
+    lo0, hi0 = _window_band(raw, params)
+    return mean, f.min(axis=0) - margin, f.max(axis=0) + margin, shift, 0.5 * (hi0 - lo0)
+
+
+def _noise_margin(f: np.ndarray, params: SelfCheckParams) -> np.ndarray:
+    """(H, W) float32: ``noise_sigmas`` temporal deviations of normalized frames (N, H, W), smoothed over 5x5 px
+    (6 frames give a poor per-pixel estimate), plus ``margin_dn`` (gray levels)."""
     sigma = np.sqrt(cv2.blur(f.var(axis=0), (5, 5)))
-    margin = (params.noise_sigmas * sigma + params.margin_dn).astype(np.float32)
+    return (params.noise_sigmas * sigma + params.margin_dn).astype(np.float32)
+
+
+def _window_band(f: np.ndarray, params: SelfCheckParams) -> tuple:
+    """``(lo, hi)`` of normalized frames (N, H, W): their minimum eroded and maximum dilated over the jitter window
+    (``jitter_window_px``), less and plus :func:`_noise_margin` (gray levels)."""
+    margin = _noise_margin(f, params)
     lo, hi = f.min(axis=0), f.max(axis=0)
     w = int(params.jitter_window_px)
-    if shift is not None:
-        margin += np.float32(params.aligned_residual_px) * _gradient_dn_per_px(mean)
-    elif w:
+    if w:
         kernel = np.ones((2 * w + 1, 2 * w + 1), np.uint8)
         lo, hi = cv2.erode(lo, kernel), cv2.dilate(hi, kernel)
-    return mean, lo - margin, hi + margin, shift
+    return lo - margin, hi + margin
 
 
 def _jitter_model(stack: np.ndarray) -> tuple:
@@ -874,7 +890,7 @@ def _contrast_profiles(view: _ViewModel, gray: np.ndarray, lighting: Lighting, u
     """Per point: the image's difference from the background across the tube's middle, and just beside the band.
 
     The difference is ``|frame - background mean|`` over the band's half-width
-    (gain-normalized frame), the most of 5 samples across ``+- r_in`` of the
+    (gain-normalized frame; the unmoved band's where frames are moved back by their jitter), the most of 5 samples across ``+- r_in`` of the
     point (``centre``), and the most of 5 samples over ``2 r_in`` just outside
     the band, on the quieter of the two sides (``beside``).
     """
@@ -887,7 +903,8 @@ def _contrast_profiles(view: _ViewModel, gray: np.ndarray, lighting: Lighting, u
         v = np.rint(pts[..., 1]).astype(np.int64)
         ins = (u >= 0) & (u < w) & (v >= 0) & (v < h)
         ui, vi = u[ins], v[ins]
-        half = np.maximum(0.5 * (view.hi[vi, ui] - view.lo[vi, ui]), 1.0)
+        half = 0.5 * (view.hi[vi, ui] - view.lo[vi, ui]) if view.contrast_half is None else view.contrast_half[vi, ui]
+        half = np.maximum(half, 1.0)
         out = np.full(u.shape, np.nan, np.float32)
         out[ins] = np.abs(lighting.normalize(gray[vi, ui], ui, vi) - view.mean[vi, ui]) / half
         return out
