@@ -152,12 +152,13 @@ def test_jitter_on_a_textured_backdrop_is_not_foreground():
                  T_cam_world=np.array([[1.0, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 300], [0, 0, 0, 1]]))
     rig = RigCalibration({"side": cam}, base_point_world_mm=[0.0, 0.0, 0.0], insertion_axis_world=[0.0, 0.0, 1.0])
     bg = {"side": np.stack([shot(*rng.uniform(-0.5, 0.5, 2)) for _ in range(N_BACKGROUND)])}
-    model = prepare_selfcheck(rig, bg)
+    model = prepare_selfcheck(rig, bg, SelfCheckParams(align_jitter=True))
     frame = shot(1.0, -0.7, gain=1.2)
     fg = foreground_roi(model.views["side"], frame, (0, 0, w, h))
     assert model.views["side"].shift is not None and fg.mean() < 0.002
+    assert prepare_selfcheck(rig, bg).views["side"].shift is None  # frames are moved back only when asked to
     # Not moved back, the jitter window holds the shift; without it texture edges are foreground.
-    unaligned = {k: prepare_selfcheck(rig, bg, SelfCheckParams(align_jitter=False, jitter_window_px=k)).views["side"]
+    unaligned = {k: prepare_selfcheck(rig, bg, SelfCheckParams(jitter_window_px=k)).views["side"]
                  for k in (0, 1)}
     fg1, fg0 = (foreground_roi(unaligned[k], frame, (0, 0, w, h)) for k in (1, 0))
     assert fg1.mean() < 0.002
