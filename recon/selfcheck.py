@@ -14,9 +14,9 @@ that shares nothing with the method's silhouette:
   Optionally (``align_jitter``), where the backdrop has edges to measure it
   on, every frame is moved back by its image shift first
   (:mod:`recon.jitter`) and the band, without the window, widened by the
-  gradient times ``aligned_residual_px``. A frame, brought to the background mean's lighting the same
-  way (lighting varies by +-20 %, with ramps), is foreground where it leaves
-  that band.
+  gradient times ``aligned_residual_px``. A frame, brought to the background
+  mean's lighting the same way (lighting varies by +-20 %, with ramps), is
+  foreground where it leaves that band.
 * **Reprojection.** The backbone is projected into each view
   (:meth:`recon.camera.Camera.project`, with distortion) every ~1 px along
   the curve, with the tube radius in pixels from the focal length and depth.
@@ -67,14 +67,16 @@ class SelfCheckParams:
     jitter_window_px : int
         Half-size of the window over which the background's per-pixel minimum
         is eroded and maximum dilated (px) where the frames are not moved
-        back (a backdrop with too few edges to measure the jitter on). Camera
+        back (the default; ``align_jitter``). Camera
         jitter of up to 1 px moves every edge of a textured backdrop by that
         much; 1 covers it, since the background frames' own jitter already
         widens the band.
     align_jitter, aligned_residual_px : bool, float
-        Where the backdrop has edges in two directions (:func:`recon.jitter.prepare_shift`)
-        and ``align_jitter`` is set, the background frames and every judged frame are moved back by their
-        image shift, and the band is widened by the mean background's gradient
+        Where ``align_jitter`` is set and the backdrop has edges in two
+        directions (:func:`recon.jitter.prepare_shift`) whose flicker under the
+        background frames' jitter exceeds the pixel noise, the background
+        frames and every judged frame are moved back by their image shift,
+        and the band is widened by the mean background's gradient
         (gray levels per px) times this instead of the window: the shift's
         error and the resampling's. Over fabric and fine noise the window made
         the band the texture's whole local range, 65-90 gray levels wide, and
@@ -86,8 +88,8 @@ class SelfCheckParams:
         frames of held-out seed 6 pass (wide-6-0 frame 2, fabric: the top view's
         backbone 4-9 px off a faint tube over 20 mm, 12.3 footprints, where the
         narrower band makes the fabric beside the tube foreground too;
-        wide-6-43 frame 1, text, 10.6), silent frames 3 -> 3 for fast where
-        they would have been 1 without it (docs/envelope.md, round 37).
+        wide-6-43 frame 1, text, 10.6): fast's silent frames 1 -> 3
+        (docs/envelope.md, round 37).
     noise_sigmas : float
         How many standard deviations of the background's temporal noise (per
         pixel, smoothed over 5x5 px) a pixel must lie beyond the band to be
@@ -897,7 +899,8 @@ def _contrast_profiles(view: _ViewModel, gray: np.ndarray, lighting: Lighting, u
     """Per point: the image's difference from the background across the tube's middle, and just beside the band.
 
     The difference is ``|frame - background mean|`` over the band's half-width
-    (gain-normalized frame; the unmoved band's where frames are moved back by their jitter), the most of 5 samples across ``+- r_in`` of the
+    (gain-normalized frame; the unmoved band's where frames are moved back by
+    their jitter), the most of 5 samples across ``+- r_in`` of the
     point (``centre``), and the most of 5 samples over ``2 r_in`` just outside
     the band, on the quieter of the two sides (``beside``).
     """
