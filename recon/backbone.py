@@ -254,7 +254,7 @@ def from_base_point(points_mm, base_point_world_mm, insertion_axis_world, step_m
     """
     pts = np.asarray(points_mm, np.float64)
     s = arc_length(pts)
-    k = int(np.clip(np.searchsorted(s, min(join_mm, s[-1] / 3.0)), 1, len(pts) - 2))
+    k = min(max(int(np.searchsorted(s, min(join_mm, s[-1] / 3.0))), 1), len(pts) - 2)  # np.clip's result, ~5 us cheaper
     p0 = np.asarray(base_point_world_mm, np.float64)
     t0 = np.asarray(insertion_axis_world, np.float64)
     t0 = t0 / np.linalg.norm(t0)

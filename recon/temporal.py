@@ -38,7 +38,7 @@ class JumpLimits:
     shape_mm: float = 25.0
 
 
-def shape_distance(a: np.ndarray, b: np.ndarray, step_mm: float = 2.0) -> float:
+def shape_distance(a: np.ndarray, b: np.ndarray, step_mm: float = 2.0, sa=None, sb=None) -> float:
     """Largest distance between two backbones at equal arc length, over their common length.
 
     Parameters
@@ -47,13 +47,16 @@ def shape_distance(a: np.ndarray, b: np.ndarray, step_mm: float = 2.0) -> float:
         Backbones, base first (world, mm).
     step_mm : float, optional
         Arc-length step (mm) of the samples compared, from the base.
+    sa, sb : (n,) and (m,) arrays, optional
+        :func:`recon.geometry.arc_length` of ``a`` and ``b`` (mm), where the caller has them already.
 
     Returns
     -------
     float
         The largest distance (mm) between ``a`` and ``b`` at the same arc length.
     """
-    sa, sb = arc_length(a), arc_length(b)
+    sa = arc_length(a) if sa is None else sa
+    sb = arc_length(b) if sb is None else sb
     s = np.arange(0.0, min(sa[-1], sb[-1]) + 1e-9, step_mm)
     if not s.size:
         return 0.0
@@ -84,11 +87,11 @@ def jump_check(prev_points, prev_tip, points, tip, limits: JumpLimits = JumpLimi
     dtip = float(np.linalg.norm(np.asarray(tip) - np.asarray(prev_tip)))
     if dtip > limits.tip_mm:
         reasons.append(f"tip moved {dtip:.1f} mm (> {limits.tip_mm:g})")
-    la = float(arc_length(prev_points)[-1])
-    lb = float(arc_length(points)[-1])
+    sa, sb = arc_length(prev_points), arc_length(points)
+    la, lb = float(sa[-1]), float(sb[-1])
     if abs(lb - la) > limits.length_mm:
         reasons.append(f"length changed {lb - la:+.1f} mm (> {limits.length_mm:g})")
-    ds = shape_distance(prev_points, points)
+    ds = shape_distance(prev_points, points, sa=sa, sb=sb)
     if ds > limits.shape_mm:
         reasons.append(f"shape moved up to {ds:.1f} mm (> {limits.shape_mm:g})")
     return "; ".join(reasons) if reasons else None
