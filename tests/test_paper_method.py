@@ -206,6 +206,32 @@ def test_base_outside_the_view(setup):
     assert rec.points_world_mm[0, 0] < -5.0  # base first: from the image border
 
 
+def test_base_on_the_border(setup):
+    """A base 1 px inside a camera's border: the silhouette touches that border where the robot enters (it is as
+    wide as the tube there), which is not the robot leaving the view (wide-3-14's side view refused every frame)."""
+    rig, model, params, rng = setup
+    from recon.paper import base_borders
+
+    name, cam = sorted(rig.cameras.items())[0]
+    xs = np.arange(0.0, -40.0, -0.005)
+    u = cam.project(np.c_[xs, np.zeros((len(xs), 2))])[0][:, 0]
+    inside = np.minimum(u, cam.width - 1.0 - u)
+    k = int(np.flatnonzero(inside <= 1.0)[0])
+    base = np.array([xs[k], 0.0, 0.0])
+    side = "left" if u[k] < cam.width / 2 else "right"
+    assert base_borders(cam, base) == []
+    assert base_borders(cam, base, margin_px=3.0) == [side]
+    moved = RigCalibration(rig.cameras, base_point_world_mm=base, insertion_axis_world=[1, 0, 0])
+    backgrounds = {n: np.stack([render(c, rng) for _ in range(8)]) for n, c in rig.cameras.items()}
+    m = prepare_paper(moved, backgrounds, params)
+    s, pts = paper_robot()
+    truth = pts + base
+    frames = {n: render(c, rng, backbone=(s, truth)) for n, c in rig.cameras.items()}
+    rec = reconstruct_paper(m, frames, params)
+    seen = truth[truth[:, 0] > -5.0]  # what both cameras see
+    assert backbone_errors(rec.points_world_mm, seen)["mean_error_mm"] <= float(rec.voxel_size_mm.max())
+
+
 def _backbone_along_x(y_mm):
     """A backbone every 0.5 mm along x over 40 mm with the given y offsets (mm) of its points."""
     from recon.backbone import ReconstructedBackbone
