@@ -105,6 +105,16 @@ def test_loop_keeps_the_background_it_encloses():
     assert not sil[35:85, 35:125].any()
 
 
+def test_a_tube_showing_one_side_only_is_as_wide_as_a_tube():
+    """A shiny tube whose shaded side is as gray as the backdrop shows about half its width (wide-2-47 frame 2:
+    7.4 px of an 11.1 px inner tube, refused as no silhouette); a jitter line of 2 px still is not a tube."""
+    d = blank()
+    d[60:62, 5:155] = 1.0  # a jitter line (300 px)
+    d[20:25, 40:100] = 1.0  # 5 px of a 8.6 px tube (300 px)
+    sil = extract_silhouette(d, SilhouetteParams(min_area_px=100), tube_radii_px=(6.9, 4.3))
+    assert sil[20:25, 40:100].all() and not sil[60:62].any()
+
+
 def test_only_regions_as_wide_as_a_tube():
     d = blank()
     d[60:62, 5:155] = 1.0  # a long thin edge line (300 px), like camera jitter leaves
