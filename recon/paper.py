@@ -174,6 +174,10 @@ class PaperModel:
         Camera name -> the backbone's longest bridged gap
         (``BackboneParams.max_gap_mm``) in px at the robot base: regions as
         wide as a tube within it of the largest join the silhouette.
+    base_px : dict
+        Camera name -> the robot base's projection (px) where the camera sees
+        it (inside the image, in front), else None: of two regions of similar
+        size the one at the base is the robot (:func:`recon.silhouette.extract_silhouette`).
     silhouette : dict
         Camera name -> :class:`~recon.silhouette.SilhouetteParams`: the
         method's, with the border the robot base lies beyond (if it lies
@@ -189,6 +193,7 @@ class PaperModel:
     behind_base: dict = field(default_factory=dict)
     full_scale: dict = field(default_factory=dict)
     attach_gap_px: dict = field(default_factory=dict)
+    base_px: dict = field(default_factory=dict)
 
 
 @dataclass(frozen=True, eq=False)
@@ -291,7 +296,7 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
     names = camera_order(rig.names)
     if len(names) < 2:
         raise ValueError(f"the paper's method needs two cameras, the rig has {len(names)}")
-    backgrounds, centerline, radii, sil, cut, scale, attach = {}, {}, {}, {}, {}, {}, {}
+    backgrounds, centerline, radii, sil, cut, scale, attach, base = {}, {}, {}, {}, {}, {}, {}, {}
     for name in names:
         cam = rig[name]
         if name not in background_frames:
@@ -325,6 +330,7 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
         # (wide-3-14's side view: the base at u = 0, the robot entering there; every frame refused as leaving).
         near = params.silhouette.border_margin_px + radii[name][0] + 1.0
         behind = [b for b in base_borders(cam, rig.base_point_world_mm, near) if b not in params.silhouette.allowed_borders]
+        base[name] = _seen_base_px(cam, rig.base_point_world_mm)
         sil[name] = replace(params.silhouette, allowed_borders=params.silhouette.allowed_borders + tuple(behind))
         cut[name] = (
             behind_base_pixels(cam, rig.base_point_world_mm, rig.insertion_axis_world, radii[name][0] + 2.0)
@@ -333,7 +339,7 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
         )
     return PaperModel(
         rig=rig, camera_names=names, backgrounds=backgrounds, centerline=centerline, tube_radii_px=radii, silhouette=sil,
-        behind_base=cut, full_scale=scale, attach_gap_px=attach,
+        behind_base=cut, full_scale=scale, attach_gap_px=attach, base_px=base,
     )
 
 
@@ -787,6 +793,14 @@ def _refined(cameras, centerlines: list, disks: list, bb, voxel_size_mm, params:
     return replace(bb, points_mm=pts, tip_mm=pts[-1].copy(), length_mm=float(s[-1]), transition_mm=at)
 
 
+def _seen_base_px(camera, base_point_world_mm):
+    """The base's projection (2,) px where ``camera`` sees it (in front, inside the image), else None."""
+    uv, z = camera.project(np.asarray(base_point_world_mm, float).reshape(1, 3))
+    if not (z[0] > 0 and np.all(np.isfinite(uv)) and camera.in_image(uv)[0]):
+        return None
+    return uv[0]
+
+
 def base_borders(camera, base_point_world_mm, margin_px: float = 0.0) -> list:
     """Image borders the robot base lies beyond (or within ``margin_px`` of), as ``camera`` sees it.
 
@@ -913,6 +927,7 @@ def reconstruct_paper(model: PaperModel, frames: dict, params: PaperParams = Pap
         silhouettes[name] = extract_silhouette(
             diff, sp, name, max_difference=peak_dn, tube_radii_px=model.tube_radii_px.get(name),
             low_threshold=hysteresis_threshold(diff, sp, peak_dn), attach_gap_px=model.attach_gap_px.get(name),
+            base_px=model.base_px.get(name),
         )
         lap("silhouette")
         disks[name] = {}

@@ -4,8 +4,9 @@ Section III-A of the paper: the normalized difference image is binarized at
 0.25 and everything but the largest connected 1-region is removed. On top of
 the paper, frames where that region is not trustworthy are rejected with a
 :class:`~recon.errors.FrameError` instead of being reconstructed into
-nonsense: no contrast, no region, two regions of similar size, or a region
-running off the image.
+nonsense: no contrast, no region, two regions of similar size (unless just
+one of them is joined to the robot base the camera sees), or a region running
+off the image.
 
 Deviation from the paper (see ``docs/paper-method.md``): the largest region is
 closed with a small disk and its holes are filled. A shiny tube reflects
@@ -183,6 +184,7 @@ def extract_silhouette(
     max_hole_radius_px: float | None = None,
     low_threshold: float | None = None,
     attach_gap_px: float | None = None,
+    base_px=None,
 ) -> np.ndarray:
     """Robot silhouette from a normalized difference image.
 
@@ -216,6 +218,12 @@ def extract_silhouette(
         distance (px) of the largest join the silhouette (not in the paper):
         the rest of a tube beyond a stretch where it matched the backdrop.
         They are then no competitor in the "two blobs" test.
+    base_px : (2,) array_like, optional
+        Where the robot leaves its base in the image (px), when the camera
+        sees it (not in the paper). Of two regions of similar size, the one
+        that reaches within :func:`base_reach_px` of it is the robot where
+        the other does not: the robot is joined to its base, clutter whose
+        edges jitter into a region as large is not (wide-3-20 frame 0).
 
     Returns
     -------
@@ -271,17 +279,17 @@ def extract_silhouette(
     a1 = int(stats[largest, cv2.CC_STAT_AREA])
     if a1 < params.min_area_px:
         raise FrameError(f"no silhouette (largest region {a1} px < {params.min_area_px} px)", camera_name)
-    members = [largest]
-    if attach_gap_px is not None and len(regions) > 1:
-        # Pieces of the same tube beyond a stretch the threshold lost: every
-        # further region as wide as a tube within ``attach_gap_px`` of the
-        # robot joins it (the backbone bridges such gaps in 3-D).
-        members += _attached(labels, stats, largest, regions[1:], attach_gap_px, params.min_area_px, group_of)
+    members = _members(labels, stats, largest, regions, attach_gap_px, params.min_area_px, group_of)
     rest = [i for i in regions if i not in members]
     if rest:
         a2 = int(stats[rest[0], cv2.CC_STAT_AREA])
         if a2 >= params.ambiguity_ratio * a1:
-            raise FrameError(f"two blobs of similar size ({a1} px and {a2} px)", camera_name)
+            at_base = _at_base(labels, (largest, rest[0]), base_px, tube_radii_px, group_of)
+            if at_base is None:
+                raise FrameError(f"two blobs of similar size ({a1} px and {a2} px)", camera_name)
+            if at_base != largest:
+                largest = at_base
+                members = _members(labels, stats, largest, regions, attach_gap_px, params.min_area_px, group_of)
     x0 = min(int(stats[i, 0]) for i in members)
     y0 = min(int(stats[i, 1]) for i in members)
     x1 = max(int(stats[i, 0] + stats[i, 2]) for i in members)
@@ -335,6 +343,41 @@ def _group_pieces(binary: np.ndarray, labels: np.ndarray, stats: np.ndarray, tub
 
 # Regions, largest first, whose width is checked (the robot is among the largest).
 _WIDTH_CANDIDATES = 8
+
+
+def _members(labels, stats, main: int, regions, attach_gap_px, min_area_px: int, binary=None) -> list:
+    """Region ``main`` and the pieces of the same tube beyond a stretch the threshold lost: every further region
+    of ``regions`` (as wide as a tube) within ``attach_gap_px`` of it joins it (the backbone bridges such gaps
+    in 3-D)."""
+    others = [i for i in regions if i != main]
+    if attach_gap_px is None or not others:
+        return [main]
+    return [main] + _attached(labels, stats, main, others, attach_gap_px, min_area_px, binary)
+
+
+def base_reach_px(tube_radii_px) -> float:
+    """How near (px) the projected robot base a region must come to be the robot's: two outer tube widths (the
+    base's own cross-section less what the threshold loses at its rim), at least 4 px."""
+    return max(4.0, 4.0 * float(max(tube_radii_px))) if tube_radii_px is not None else 4.0
+
+
+def _at_base(labels, candidates, base_px, tube_radii_px, binary=None):
+    """The one of ``candidates`` (labels) with a pixel within :func:`base_reach_px` of ``base_px``; None where no
+    base is given, or where none or both reach it."""
+    if base_px is None:
+        return None
+    H, W = labels.shape
+    r = base_reach_px(tube_radii_px)
+    u, v = float(base_px[0]), float(base_px[1])
+    x0, y0, x1, y1 = max(int(u - r), 0), max(int(v - r), 0), min(int(u + r) + 1, W), min(int(v + r) + 1, H)
+    if x0 >= x1 or y0 >= y1:
+        return None
+    yy, xx = np.mgrid[y0:y1, x0:x1]
+    near = (xx - u) ** 2 + (yy - v) ** 2 <= r * r
+    if binary is not None:
+        near &= binary[y0:y1, x0:x1].view(bool)
+    found = [i for i in candidates if np.any(near & (labels[y0:y1, x0:x1] == i))]
+    return found[0] if len(found) == 1 else None
 
 
 def _attached(labels, stats, main: int, others, gap_px: float, min_area_px: int, binary=None) -> list:

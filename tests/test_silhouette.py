@@ -115,6 +115,22 @@ def test_a_tube_showing_one_side_only_is_as_wide_as_a_tube():
     assert sil[20:25, 40:100].all() and not sil[60:62].any()
 
 
+def test_of_two_blobs_of_similar_size_the_one_at_the_base_is_the_robot():
+    """Clutter whose edges jitter into a region as large as the robot: where the camera sees the base, the
+    region joined to it is the robot; without a base, or with both (or neither) at it, the frame is refused."""
+    d = blank()
+    d[20:29, 10:70] = 1.0  # the robot, from its base at (10, 24)
+    d[80:89, 90:145] = 1.0  # clutter, 495 px against 540
+    kw = dict(tube_radii_px=(6.9, 4.3))
+    sil = extract_silhouette(d, SilhouetteParams(min_area_px=100), base_px=(10.0, 24.0), **kw)
+    assert sil[20:29, 10:70].all() and not sil[80:89].any()
+    sil = extract_silhouette(d, SilhouetteParams(min_area_px=100), base_px=(92.0, 84.0), **kw)
+    assert sil[80:89, 90:145].all() and not sil[20:29].any()
+    for base in (None, (150.0, 10.0)):
+        with pytest.raises(FrameError, match=r"^side: two blobs of similar size \(540 px and 495 px\)$"):
+            extract_silhouette(d, SilhouetteParams(min_area_px=100), "side", base_px=base, **kw)
+
+
 def test_only_regions_as_wide_as_a_tube():
     d = blank()
     d[60:62, 5:155] = 1.0  # a long thin edge line (300 px), like camera jitter leaves
