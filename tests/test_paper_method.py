@@ -188,17 +188,11 @@ def test_base_outside_the_view(setup):
     from recon.paper import base_borders
 
     shift = np.array([-40.0, 0.0, 0.0])  # base at x = -40 mm, left of both fields of view (x > -9 mm)
-    moved = RigCalibration(rig.cameras, base_point_world_mm=shift, insertion_axis_world=[1, 0, 0])
     for name, cam in rig.cameras.items():
         u = cam.project(shift[None])[0][0, 0]
         assert base_borders(cam, shift) == (["left"] if u < 0 else ["right"])
         assert base_borders(cam, [50.0, 0.0, 0.0]) == []
-    backgrounds = {n: np.stack([render(c, rng) for _ in range(8)]) for n, c in rig.cameras.items()}
-    m = prepare_paper(moved, backgrounds, params)
-    s, pts = paper_robot()
-    truth = pts + shift
-    frames = {name: render(cam, rng, backbone=(s, truth)) for name, cam in rig.cameras.items()}
-    rec = reconstruct_paper(m, frames, params)
+    rec, truth = _paper_robot_from(rig, shift, params, rng)
     seen = truth[truth[:, 0] > -5.0]  # what both cameras see
     voxel = float(rec.voxel_size_mm.max())
     assert backbone_errors(rec.points_world_mm, seen)["mean_error_mm"] <= voxel
@@ -221,15 +215,21 @@ def test_base_on_the_border(setup):
     side = "left" if u[k] < cam.width / 2 else "right"
     assert base_borders(cam, base) == []
     assert base_borders(cam, base, margin_px=3.0) == [side]
-    moved = RigCalibration(rig.cameras, base_point_world_mm=base, insertion_axis_world=[1, 0, 0])
+    rec, truth = _paper_robot_from(rig, base, params, rng)
+    seen = truth[truth[:, 0] > -5.0]  # what both cameras see
+    assert backbone_errors(rec.points_world_mm, seen)["mean_error_mm"] <= float(rec.voxel_size_mm.max())
+
+
+def _paper_robot_from(rig, base_mm, params, rng):
+    """The paper's robot drawn from a base at ``base_mm`` (world, mm; insertion along +x) and reconstructed on the
+    rig's cameras: ``(reconstruction, truth backbone (n, 3) mm)``."""
+    moved = RigCalibration(rig.cameras, base_point_world_mm=base_mm, insertion_axis_world=[1, 0, 0])
     backgrounds = {n: np.stack([render(c, rng) for _ in range(8)]) for n, c in rig.cameras.items()}
     m = prepare_paper(moved, backgrounds, params)
     s, pts = paper_robot()
-    truth = pts + base
+    truth = pts + np.asarray(base_mm)
     frames = {n: render(c, rng, backbone=(s, truth)) for n, c in rig.cameras.items()}
-    rec = reconstruct_paper(m, frames, params)
-    seen = truth[truth[:, 0] > -5.0]  # what both cameras see
-    assert backbone_errors(rec.points_world_mm, seen)["mean_error_mm"] <= float(rec.voxel_size_mm.max())
+    return reconstruct_paper(m, frames, params), truth
 
 
 def _backbone_along_x(y_mm):
