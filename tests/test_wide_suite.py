@@ -56,7 +56,7 @@ def test_fast_reconstructs_95_percent(report):
 
 @pytest.mark.xfail(strict=True, reason="issue 13, open: 6 of 12 frames (tubes of 3.2-3.4 px, now within the paper "
                    "method's 3 px limit); wide-21-1 is refused on every frame ('side: robot leaves the view at the left "
-                   "border': the base is outside that view), wide-21-3 as 'in pieces the backbone cannot join' and 'two blobs'")
+                   "border': the base is on that border, u = -0.2), wide-21-3 frames 0 and 1 as 'in pieces the backbone cannot join'")
 def test_paper_within_a_voxel(report):
     a = report[0]["methods"]["paper"]
     assert a["reconstructed_fraction"] >= 0.9, a
