@@ -121,13 +121,17 @@ class SelfCheckParams:
         Limit of (a) as a length (px of the innermost tube): a missing tip
         is a small fraction of a long robot. Good twin frames stay below 6 px.
     max_off_foreground_fraction : float
-        Limit of (b): a backbone that leaves the tube for 30 % of its
-        in-image length. One that leaves it in one stretch is the run
-        limit's; a thin tube over fine noise leaves 10-20 px gaps in the
-        foreground all along (wide-3-20 frame 0 of the fast method: 26 %,
-        none over 4 % in one run, the backbone good). On wide seeds 2 and 3,
-        0.20 flagged two good frames alone, and every wrong frame between
-        0.20 and 0.30 (five) was flagged by another figure too.
+        Limit of (b): a backbone that leaves the tube for half its in-image
+        length in scattered stretches. One that leaves it in one stretch is
+        the run limit's; a thin tube over fine noise or fabric leaves 10-20
+        px gaps in the foreground all along (wide-3-20 frame 0 of the fast
+        method: 26 %, none over 4 % in one run, the backbone good;
+        wide-2-22 frame 2: 49.5 %, 3.5 footprints). On wide seeds 2 and 3,
+        0.20 flagged two good frames alone and every wrong frame between
+        0.20 and 0.30 (five) was flagged by another figure too; 0.30 still
+        flagged two good frames alone there (wide-2-22 frame 2, wide-2-23
+        frame 1) and no wrong frame was flagged by this share alone on
+        seeds 2 and 3 (round 38: 0.50).
     max_off_foreground_run_fraction : float
         Limit of (b) over its longest stretch: the longest run of reprojected
         samples with neither foreground nor tube contrast, as a share of the
@@ -299,7 +303,7 @@ class SelfCheckParams:
     profile_search_px: float = 6.0
     max_unexplained_fraction: float = 0.10
     max_unexplained_px: float = 8.0
-    max_off_foreground_fraction: float = 0.30
+    max_off_foreground_fraction: float = 0.50
     max_off_foreground_run_fraction: float = 0.12
     max_centerline_rms_px: float = 2.5
     max_centerline_local_px: float = 7.0
