@@ -221,7 +221,7 @@ def extract_silhouette(
     base_px : (2,) array_like, optional
         Where the robot leaves its base in the image (px), when the camera
         sees it (not in the paper). Of two regions of similar size, the one
-        that reaches within :func:`base_reach_px` of it is the robot where
+        that reaches within :func:`_base_reach_px` of it is the robot where
         the other does not: the robot is joined to its base, clutter whose
         edges jitter into a region as large is not (wide-3-20 frame 0).
 
@@ -355,19 +355,19 @@ def _members(labels, stats, main: int, regions, attach_gap_px, min_area_px: int,
     return [main] + _attached(labels, stats, main, others, attach_gap_px, min_area_px, binary)
 
 
-def base_reach_px(tube_radii_px) -> float:
+def _base_reach_px(tube_radii_px) -> float:
     """How near (px) the projected robot base a region must come to be the robot's: two outer tube widths (the
     base's own cross-section less what the threshold loses at its rim), at least 4 px."""
     return max(4.0, 4.0 * float(max(tube_radii_px))) if tube_radii_px is not None else 4.0
 
 
 def _at_base(labels, candidates, base_px, tube_radii_px, binary=None):
-    """The one of ``candidates`` (labels) with a pixel within :func:`base_reach_px` of ``base_px``; None where no
+    """The one of ``candidates`` (labels) with a pixel within :func:`_base_reach_px` of ``base_px``; None where no
     base is given, or where none or both reach it."""
     if base_px is None:
         return None
     H, W = labels.shape
-    r = base_reach_px(tube_radii_px)
+    r = _base_reach_px(tube_radii_px)
     u, v = float(base_px[0]), float(base_px[1])
     x0, y0, x1, y1 = max(int(u - r), 0), max(int(v - r), 0), min(int(u + r) + 1, W), min(int(v + r) + 1, H)
     if x0 >= x1 or y0 >= y1:
