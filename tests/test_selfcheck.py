@@ -288,15 +288,21 @@ def test_one_long_stretch_off_the_tube_is_flagged_where_the_whole_share_passes(m
         assert sc.reason.startswith("side:") and "in one stretch" in sc.reason, sc.reason
 
 
+def _hidden_stretches(rendered, cam: str, starts, share: float) -> dict:
+    """The frame's images with view ``cam``'s tube hidden (:func:`_hidden`) over ``share`` of the robot's length
+    from each of ``starts`` (shares of its length)."""
+    images = rendered.frame.images
+    for lo in starts:
+        images = _hidden(SimpleNamespace(**{**vars(rendered), "frame": SimpleNamespace(images=images)}), cam, lo, lo + share)
+    return images
+
+
 def test_scattered_misses_over_most_of_the_tube_are_flagged(model, rendered):
     # Twelve short stretches of the true backbone hidden in the side view (each reads about twice its
     # length off foreground, the painted band's ends included): more than half of it in all, none over 10 %
     # in one: past the share limit, under the run limit; the check cannot vouch for a shape that the view
     # shows over less than half its length.
-    images = rendered.frame.images
-    for lo in np.linspace(0.02, 0.94, 12):
-        images = _hidden(SimpleNamespace(**{**vars(rendered), "frame": SimpleNamespace(images=images)}), "side", lo, lo + 0.025)
-    sc = _check(model, rendered, rendered.truth, images)
+    sc = _check(model, rendered, rendered.truth, _hidden_stretches(rendered, "side", np.linspace(0.02, 0.94, 12), 0.025))
     f, p = sc.figures["side"], SelfCheckParams()
     assert f["off_foreground_fraction"] > p.max_off_foreground_fraction and f["off_foreground_run_fraction"] < 0.1, f
     assert not sc.ok and "of the reprojected tube is not on foreground" in sc.reason, sc.reason
@@ -307,9 +313,7 @@ def test_scattered_misses_on_a_faint_tube_are_not_a_backbone_off_it(model, rende
     # leaves 10-20 px gaps in the foreground all along: 26 % of the reprojection off it, none over 4 % in one
     # stretch. Here six stretches of the true backbone hidden in the side view, 27 % of it in all, under 6 %
     # in one: the whole share is under its limit (50 %); the wrong end over the same images is still flagged.
-    images = rendered.frame.images
-    for lo in np.linspace(0.1, 0.85, 6):
-        images = _hidden(SimpleNamespace(**{**vars(rendered), "frame": SimpleNamespace(images=images)}), "side", lo, lo + 0.02)
+    images = _hidden_stretches(rendered, "side", np.linspace(0.1, 0.85, 6), 0.02)
     sc = _check(model, rendered, rendered.truth, images)
     f, p = sc.figures["side"], SelfCheckParams()
     assert 0.2 < f["off_foreground_fraction"] < p.max_off_foreground_fraction and f["off_foreground_run_fraction"] < 0.08, f
