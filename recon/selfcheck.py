@@ -753,9 +753,13 @@ def foreground_roi(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.n
     (h, w) bool
         Foreground (in the background's pixel frame); False behind the robot base.
     """
-    if view.shift is not None:
-        gray = shifted(gray, frame_shift(view.shift, gray))  # onto the background frames, moved back alike
-    return _foreground_u8(view, gray, roi, None if exclude is None else np.asarray(exclude, np.uint8))[0] > 0
+    return _foreground_u8(view, _steadied(view, gray), roi, None if exclude is None else np.asarray(exclude, np.uint8))[0] > 0
+
+
+def _steadied(view: _ViewModel, gray: np.ndarray) -> np.ndarray:
+    """``gray`` moved back by its image shift onto the background frames, moved back alike, where the view
+    measures the jitter (``SelfCheckParams.align_jitter``); else as it is."""
+    return gray if view.shift is None else shifted(gray, frame_shift(view.shift, gray))
 
 
 def _foreground_u8(view: _ViewModel, gray: np.ndarray, roi: tuple, exclude: np.ndarray | None = None) -> tuple:
@@ -1602,8 +1606,7 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
             raise ValueError(f"{name}: image is {gray.shape[1]}x{gray.shape[0]} but the camera is {cam.width}x{cam.height}")
         if view.binary and gray.max() <= 1:
             gray = gray * np.uint8(255)  # a 0/1 mask
-        if view.shift is not None:
-            gray = shifted(gray, frame_shift(view.shift, gray))  # onto the background frames, moved back alike
+        gray = _steadied(view, gray)
         others = [model.rig[o] for o in model.rig.names if o != name]
         figures[name] = _judge_view(view, cam, gray, pts, (r_out, r_in), params, others, model.rig.base_point_world_mm)
     shape = {"behind_base_px": _behind_base_px(model.rig, pts), "kink_px": _kink_px(model.rig, pts, r_in, params),
