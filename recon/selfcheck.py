@@ -290,6 +290,20 @@ class SelfCheckParams:
         wrong frames wide-1-24 fast 2 and wide-1-57 fast 0 read 68 and 55 mm.
         Stretches that reach an end of the backbone are left to the tip and
         start figures.
+    max_length_mismatch_fraction : float
+        Where the frame's joint values are known, the robot's length is too:
+        the innermost tube's tip is ``max(extension_mm)`` from the base along
+        the backbone (docs/scenes.md, joint conventions), and tubes do not
+        stretch. The *length mismatch* is ``|L + c - E| / E``, with ``L`` the
+        backbone's arc length, ``c`` the straight distance from the base to
+        its first point (the robot before a view's border, which no view sees:
+        a chord, so at most its arc) and ``E`` the joints' length. A backbone
+        that stops a third of the way along a faint tube, with every view
+        figure in range because the rest of the tube is not foreground, reads
+        0.66 (wide-8-42 frame 1 of the fast method: 85 mm off, reported ok).
+        Good frames of wide seeds 1-3 and 5-8 read up to 0.016 (fast) and
+        0.062 (paper: a 37 mm robot 2.3 mm long); 0.10 between, with room for
+        a lab's encoder zero a few mm off.
     """
 
     jitter_window_px: int = 1
@@ -339,6 +353,7 @@ class SelfCheckParams:
     max_start_gap_px: float = 12.0
     min_depth_visibility: float = 0.3
     max_unmeasured_depth_mm: float = 20.0
+    max_length_mismatch_fraction: float = 0.10
 
     def __post_init__(self):
         if int(self.jitter_window_px) != self.jitter_window_px or self.jitter_window_px < 0:
@@ -349,7 +364,8 @@ class SelfCheckParams:
                 raise ValueError(f"SelfCheckParams: {name} must be >= 0")
         for name in ("sample_step_px", "max_unexplained_fraction", "max_unexplained_px", "max_off_foreground_fraction",
                      "max_off_foreground_run_fraction", "max_centerline_rms_px",
-                     "tip_tangent_px", "max_tip_overhang_px", "kink_chord_mm", "max_strain", "max_kink_px", "max_start_gap_px", "max_unmeasured_depth_mm"):
+                     "tip_tangent_px", "max_tip_overhang_px", "kink_chord_mm", "max_strain", "max_kink_px", "max_start_gap_px", "max_unmeasured_depth_mm",
+                     "max_length_mismatch_fraction"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"SelfCheckParams: {name} must be > 0")
 
@@ -398,9 +414,10 @@ class SelfCheck:
         Camera name -> ``{"unexplained_fraction", "unexplained_px",
         "off_foreground_fraction", "tip_off_foreground_px", "tip_overhang_px", "centerline_rms_px",
         "centerline_max_px", "beyond_tip_contrast", "behind_base_px", "kink_px", "start_gap_px",
-        "unmeasured_depth_mm", "visible_px", "unseen_px"}`` (None where not measured: view not
-        judged, no clean cross-section for the RMS, ...). ``behind_base_px``, ``kink_px``,
-        ``start_gap_px`` and ``unmeasured_depth_mm`` are the backbone's, the same in every view.
+        "unmeasured_depth_mm", "length_mismatch_fraction", "visible_px", "unseen_px"}`` (None where
+        not measured: view not judged, no clean cross-section for the RMS, no joint values for the
+        length, ...). ``behind_base_px``, ``kink_px``, ``start_gap_px``, ``unmeasured_depth_mm`` and
+        ``length_mismatch_fraction`` are the backbone's, the same in every view.
     ms : float
         Wall time of the check (ms).
     """
@@ -1522,6 +1539,17 @@ def _start_gap_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
     return float(np.linalg.norm(first[0] - base) / fp) if np.isfinite(fp) and fp > 0 else 0.0
 
 
+def _length_mismatch(rig: RigCalibration, points_world_mm: np.ndarray, expected_length_mm: float | None) -> float | None:
+    """How far the backbone's length is off the joints' (fraction of it; see ``SelfCheckParams.max_length_mismatch_fraction``).
+
+    None when ``expected_length_mm`` (mm, from the base along the backbone) is None.
+    """
+    if expected_length_mm is None:
+        return None
+    reach_mm = arc_length(points_world_mm)[-1] + np.linalg.norm(points_world_mm[0] - np.asarray(rig.base_point_world_mm, np.float64))
+    return float(abs(reach_mm - expected_length_mm) / expected_length_mm)
+
+
 #: Each figure and the :class:`SelfCheckParams` limit it is judged against (figure > limit: the frame is
 #: suspect), with the reason it then gives (``cam``, the figure ``x`` and the limit ``lim``).
 FIGURE_LIMITS = {
@@ -1541,6 +1569,8 @@ FIGURE_LIMITS = {
                      "the backbone starts {x:.0f} px in from where the robot enters the views (limit {lim:.0f} px): the robot before it is missing"),
     "unmeasured_depth_mm": ("max_unmeasured_depth_mm",
                             "over {x:.0f} mm the tube runs near an epipolar plane: the views do not measure its depth there (limit {lim:.0f} mm)"),
+    "length_mismatch_fraction": ("max_length_mismatch_fraction",
+                                 "the backbone's length is {pct:.0f} % off the robot's length from the joint values (limit {pct_lim:.0f} %)"),
     "beyond_tip_contrast": ("max_beyond_tip_contrast", "{cam}: the tube goes on beyond the reprojected tip (contrast {x:.1f}, limit {lim:.1f})"),
     "centerline_rms_px": ("max_centerline_rms_px", "{cam}: the reprojected centerline is {x:.1f} px RMS off the tube's middle (limit {lim:.1f} px)"),
     "centerline_max_px": ("max_centerline_local_px",
@@ -1559,7 +1589,8 @@ def _verdict(figures: dict, params: SelfCheckParams) -> str | None:
     return reason
 
 
-def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_radii_mm, params: SelfCheckParams = SelfCheckParams()) -> SelfCheck:
+def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_radii_mm, params: SelfCheckParams = SelfCheckParams(),
+                   expected_length_mm: float | None = None) -> SelfCheck:
     """Judge a backbone against the frame it was reconstructed from.
 
     Parameters
@@ -1574,6 +1605,10 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
         Tube radii (mm): the band that explains foreground uses the outermost;
         a cross-section must be at least the innermost radius wide.
     params : SelfCheckParams
+    expected_length_mm : float, optional
+        The robot's length from the frame's joint values (mm from the base to
+        the tip along the backbone, ``max(extension_mm)``); None where the
+        frame has none (the length is then not judged).
 
     Returns
     -------
@@ -1583,7 +1618,8 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
     ------
     ValueError
         One line: a camera's image missing or of the wrong size, a backbone
-        that is not (n >= 2, 3) finite, radii that are not positive.
+        that is not (n >= 2, 3) finite, radii or an expected length that are
+        not positive.
     """
     t0 = time.perf_counter()
     pts = np.asarray(points_world_mm, np.float64)
@@ -1596,6 +1632,8 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
     if not (r_out > 0 and r_in > 0):
         raise ValueError(f"self-check: tube radii must be > 0 mm, got ({r_out}, {r_in})")
     r_in = min(r_in, r_out)
+    if expected_length_mm is not None and not (math.isfinite(expected_length_mm) and expected_length_mm > 0):
+        raise ValueError(f"self-check: the expected robot length must be > 0 mm, got {expected_length_mm}")
     figures = {}
     for name, view in model.views.items():
         cam = model.rig[name]
@@ -1610,7 +1648,8 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
         others = [model.rig[o] for o in model.rig.names if o != name]
         figures[name] = _judge_view(view, cam, gray, pts, (r_out, r_in), params, others, model.rig.base_point_world_mm)
     shape = {"behind_base_px": _behind_base_px(model.rig, pts), "kink_px": _kink_px(model.rig, pts, r_in, params),
-             "start_gap_px": _start_gap_px(model.rig, pts), "unmeasured_depth_mm": _unmeasured_depth_mm(model.rig, pts, params)}
+             "start_gap_px": _start_gap_px(model.rig, pts), "unmeasured_depth_mm": _unmeasured_depth_mm(model.rig, pts, params),
+             "length_mismatch_fraction": _length_mismatch(model.rig, pts, expected_length_mm)}
     for f in figures.values():
         f.update(shape)
     reason = _verdict(figures, params)

@@ -56,6 +56,41 @@ def test_a_backbone_cut_20_percent_short_is_flagged(model, rendered):
     assert "not explained" in sc.reason, sc.reason
 
 
+def _erased_beyond(rendered, s_cut_mm: float) -> dict:
+    """The frame's images with the robot beyond arc length ``s_cut_mm`` painted over with the mean background."""
+    from scipy.spatial import cKDTree
+
+    images = {}
+    for c, img in rendered.frame.images.items():
+        ys, xs = np.nonzero(rendered.frame.labels[c])
+        _, nearest = cKDTree(rendered.frame.centerline_px[c]).query(np.column_stack([xs, ys]))
+        far = rendered.s_mm[nearest] > s_cut_mm
+        out = img.copy()
+        out[ys[far], xs[far]] = np.round(rendered.background[c].mean(axis=0))[ys[far], xs[far]].astype(np.uint8)
+        images[c] = out
+    return images
+
+
+def test_a_backbone_short_of_the_joints_length_is_flagged_where_the_views_cannot_see_it(model, rendered):
+    # wide-8-42 frame 1 (fast): the backbone stopped a third of the way along a tube the foreground did
+    # not show further; every view figure passed. Here the robot beyond a third is erased from the images.
+    expected_mm = float(max(rendered.frame.joints.extension_mm))
+    assert expected_mm == pytest.approx(rendered.s_mm[-1], abs=0.2)  # the joint convention: the tip is max(extension) out
+    cut_mm = rendered.s_mm[-1] / 3
+    images = _erased_beyond(rendered, cut_mm)
+    short = rendered.truth[rendered.s_mm <= cut_mm]
+    assert check_backbone(model, images, short, rendered.radii).ok  # the views alone cannot tell
+    sc = check_backbone(model, images, short, rendered.radii, expected_length_mm=expected_mm)
+    assert not sc.ok
+    assert "joint values" in sc.reason, sc.reason
+    assert sc.figures["side"]["length_mismatch_fraction"] == pytest.approx(2 / 3, abs=0.02)
+    good = check_backbone(model, rendered.frame.images, rendered.truth, rendered.radii, expected_length_mm=expected_mm)
+    assert good.ok, good.reason
+    assert good.figures["top"]["length_mismatch_fraction"] < 0.01
+    with pytest.raises(ValueError, match="expected robot length"):
+        check_backbone(model, images, short, rendered.radii, expected_length_mm=float("nan"))
+
+
 def test_a_backbone_shifted_5_px_in_one_view_is_flagged(model, rendered):
     side = rendered.rig["side"]
     # Move along the side camera's image-down axis, 5 px at the robot's depth; the top camera sees this as depth.
@@ -327,16 +362,33 @@ class _WrongParams:
     inner_tube_radius_mm: float = 0.5
 
 
-def _two_frame_session(rendered, session):
-    """A session directory of the rendered frame twice (frames 0 and 1), its background frames and its truth."""
+def _two_frame_session(rendered, session, joints=(None, None)):
+    """A session directory of the rendered frame twice (frames 0 and 1, with ``joints``), its background frames and its truth."""
     from rig.session import SessionWriter
 
     with SessionWriter(session, rendered.rig, "twin", n_tubes=2) as w:
         for i in range(N_BACKGROUND):
             w.add_background(i, {c: rendered.background[c][i] for c in rendered.rig.names})
         for i in range(2):
-            w.add_frame(i, rendered.frame.images, t_s=float(i), truth={"backbone_world_mm": rendered.truth})
+            w.add_frame(i, rendered.frame.images, t_s=float(i), joints=joints[i], truth={"backbone_world_mm": rendered.truth})
     return session
+
+
+def test_reconstruct_session_judges_the_length_by_the_recorded_joints(rendered, tmp_path):
+    # Frame 0 records the joints the twin rendered; frame 1 claims the inner tube 30 mm further out
+    # than the images show: its (right-looking) backbone is 30 mm short of the recorded robot.
+    from rig.bench.reconstruct import reconstruct_session
+
+    true = rendered.frame.joints
+    longer = SimpleNamespace(extension_mm=[true.extension_mm[0], true.extension_mm[1] + 30.0], rotation_deg=true.rotation_deg)
+    session = _two_frame_session(rendered, tmp_path / "session", joints=(true, longer))
+    r0, r1 = reconstruct_session(session, tmp_path / "out", method="paper")["per_frame"]
+    assert r0["status"] == "ok", r0["reason"]
+    assert r0["selfcheck"]["views"]["side"]["length_mismatch_fraction"] < 0.03
+    assert r1["status"] == "suspect" and "joint values" in r1["reason"], r1["reason"]
+    # Without joint values the length is not judged.
+    unjointed = reconstruct_session(_two_frame_session(rendered, tmp_path / "bare"), tmp_path / "out2", method="paper")
+    assert unjointed["per_frame"][0]["selfcheck"]["views"]["top"]["length_mismatch_fraction"] is None
 
 
 def test_reconstruct_session_marks_a_wrong_frame_suspect(rendered, tmp_path, monkeypatch):

@@ -26,6 +26,7 @@ can count silent wrong shapes (``ok`` frames with large errors).
 """
 from __future__ import annotations
 
+import math
 import os
 import time
 from pathlib import Path
@@ -52,7 +53,7 @@ from rig.session import Session, SessionError
 from rig.tables import cell
 
 __all__ = ["reconstruct_session", "load_background_frames", "format_table",
-           "selfcheck_tube_radii_mm", "selfcheck_record", "checked_result"]
+           "selfcheck_tube_radii_mm", "joint_length_mm", "selfcheck_record", "checked_result"]
 
 #: Per-frame statuses: reconstructed and passed the self-check, reconstructed but the
 #: self-check doubts it, not reconstructed.
@@ -113,16 +114,30 @@ def selfcheck_tube_radii_mm(session: Session, params):
     return None
 
 
-def selfcheck_record(rec: dict, check_model, images: dict, pts: np.ndarray, radii_mm, params: SelfCheckParams) -> None:
+def joint_length_mm(frame) -> float | None:
+    """The robot's length (mm from the base to the tip along the backbone) from a frame's joint values, or None.
+
+    ``max(extension_mm)``: each tube's distal end is that far beyond the base
+    (docs/scenes.md, joint conventions). None where the frame records no joint
+    values, or values that give no positive finite length.
+    """
+    ext = frame.extension_mm
+    if not ext or not all(math.isfinite(e) for e in ext) or max(ext) <= 0:
+        return None
+    return float(max(ext))
+
+
+def selfcheck_record(rec: dict, check_model, images: dict, pts: np.ndarray, radii_mm, params: SelfCheckParams,
+                     expected_length_mm: float | None = None) -> None:
     """Judge a reconstructed backbone and record the verdict in its per-frame record.
 
     Sets ``rec["selfcheck"]`` (``recon.selfcheck.SelfCheck.to_dict``) and, when
     the check fails, ``status = "suspect"`` with the check's reason. A check
     that cannot run makes the frame suspect too: an unverified shape must not
-    pass as ``ok``.
+    pass as ``ok``. ``expected_length_mm``: :func:`joint_length_mm` of the frame.
     """
     try:
-        sc = check_backbone(check_model, images, pts, radii_mm, params)
+        sc = check_backbone(check_model, images, pts, radii_mm, params, expected_length_mm)
     except Exception as exc:  # noqa: BLE001 - a crashing check must not cost the frame
         if os.environ.get("CTR_BENCH_DEBUG") and not isinstance(exc, ValueError):
             raise
@@ -134,7 +149,8 @@ def selfcheck_record(rec: dict, check_model, images: dict, pts: np.ndarray, radi
         rec.update(status="suspect", reason=sc.reason)
 
 
-def checked_result(rec: dict, result, check_model, images: dict, radii_mm, params: SelfCheckParams) -> tuple:
+def checked_result(rec: dict, result, check_model, images: dict, radii_mm, params: SelfCheckParams,
+                   expected_length_mm: float | None = None) -> tuple:
     """The reading of a frame that the self-check passes, judged into ``rec``: ``(result, backbone (n, 3) world mm)``.
 
     A method may offer a second reading of the frame (``result.alternative``: the fast method's
@@ -148,13 +164,13 @@ def checked_result(rec: dict, result, check_model, images: dict, radii_mm, param
     if alt is not None:
         trial = dict(rec)
         alt_pts = _backbone_points(alt)
-        selfcheck_record(trial, check_model, images, alt_pts, radii_mm, params)
+        selfcheck_record(trial, check_model, images, alt_pts, radii_mm, params, expected_length_mm)
         record_doubt(trial, alt, checked=True)
         if trial["status"] == "ok":
             rec.update(trial, reading="alternative")
             return alt, alt_pts
     pts = _backbone_points(result)
-    selfcheck_record(rec, check_model, images, pts, radii_mm, params)
+    selfcheck_record(rec, check_model, images, pts, radii_mm, params, expected_length_mm)
     if alt is not None:
         rec["reading"] = "own"
     return result, pts
@@ -197,15 +213,16 @@ def _reconstruct_frame(session: Session, fr, reconstruct, check_model, radii_mm,
     """
     rec = {"frame": fr.index, "t_s": fr.t_s, "status": "ok", "reason": None}
     try:
-        return rec, _reconstruct_and_judge(rec, session, fr.index, reconstruct, check_model, radii_mm, selfcheck)
+        return rec, _reconstruct_and_judge(rec, session, fr, reconstruct, check_model, radii_mm, selfcheck)
     except Exception as exc:  # noqa: BLE001 - per-frame isolation is the point
         if os.environ.get("CTR_BENCH_DEBUG") and not isinstance(exc, (FrameError, SessionError)):
             raise  # a developer asked to see where an unforeseen failure comes from
         return {"frame": fr.index, "t_s": fr.t_s, "status": "failed", "reason": _one_line(exc)}, None
 
 
-def _reconstruct_and_judge(rec: dict, session: Session, index: int, reconstruct, check_model, radii_mm, selfcheck) -> np.ndarray:
-    """Reconstruct frame ``index`` into ``rec`` (time, self-check, description, score); returns its backbone."""
+def _reconstruct_and_judge(rec: dict, session: Session, fr, reconstruct, check_model, radii_mm, selfcheck) -> np.ndarray:
+    """Reconstruct frame ``fr`` (a ``frames.csv`` record) into ``rec`` (time, self-check, description, score); returns its backbone."""
+    index = fr.index
     images = session.frame_images(index)
     for cam, img in images.items():
         c = session.rig[cam]
@@ -215,7 +232,7 @@ def _reconstruct_and_judge(rec: dict, session: Session, index: int, reconstruct,
     result = reconstruct(images)
     rec["ms"] = 1e3 * (time.perf_counter() - t0)
     if check_model is not None:
-        result, pts = checked_result(rec, result, check_model, images, radii_mm, selfcheck)
+        result, pts = checked_result(rec, result, check_model, images, radii_mm, selfcheck, joint_length_mm(fr))
     else:
         pts = _backbone_points(result)
     rec.update(jump_record(result))  # the fast method's temporal check: recorded, the status stays the self-check's
