@@ -290,20 +290,30 @@ class SelfCheckParams:
         wrong frames wide-1-24 fast 2 and wide-1-57 fast 0 read 68 and 55 mm.
         Stretches that reach an end of the backbone are left to the tip and
         start figures.
-    max_length_mismatch_fraction : float
+    max_length_mismatch_fraction, max_length_mismatch_px : float
         Where the frame's joint values are known, the robot's length is too:
         the innermost tube's tip is ``max(extension_mm)`` from the base along
         the backbone (docs/scenes.md, joint conventions), and tubes do not
-        stretch. The *length mismatch* is ``|L + c - E| / E``, with ``L`` the
-        backbone's arc length, ``c`` the straight distance from the base to
-        its first point (the robot before a view's border, which no view sees:
-        a chord, so at most its arc) and ``E`` the joints' length. A backbone
-        that stops a third of the way along a faint tube, with every view
-        figure in range because the rest of the tube is not foreground, reads
-        0.66 (wide-8-42 frame 1 of the fast method: 85 mm off, reported ok).
-        Good frames of wide seeds 1-3 and 5-8 read up to 0.016 (fast) and
-        0.062 (paper: a 37 mm robot 2.3 mm long); 0.10 between, with room for
-        a lab's encoder zero a few mm off.
+        stretch. The *length mismatch* is ``|L + c - E|``, with ``L`` the
+        backbone's arc length (over vertices 5 mm apart: a carved backbone's
+        sub-mm wiggle added 4 % over its 0.5 mm vertices, wide-3-44 frame 1 of
+        the paper method), ``c`` the straight distance from the base to its
+        first point (the robot before a view's border, which no view sees) and
+        ``E`` the joints' length. As a fraction of ``E``: a backbone that stops
+        a third of the way along a faint tube, with every view figure in range
+        because the rest of the tube is not foreground, reads 0.66 (wide-8-42
+        frame 1 of the fast method: 85 mm off, reported ok); good frames of
+        wide seeds 1-3 and 5-8 read up to 0.016 (fast) and 0.062 (paper, a 37
+        mm robot) -- limit 0.10. In pixel footprints at the tip, where the
+        base is in every view (elsewhere ``c`` is a chord of a robot that may
+        bend out of view: good frames read up to 19): the length's error is the
+        tip's along the tube, and good frames with the base in view read up
+        to 7.1 (fast) and 8.9 (paper), while paper frames reported ok with
+        their tips 12-18 footprints short read 11.8-18.3 (wide-1-7 frame 2,
+        wide-7-44 frame 0, wide-8-27 frame 1) -- limit 10, the footprints that
+        make a frame wrong. Both assume joint values calibrated to the tube's
+        exposed length within about a millimetre; a rig whose are not should
+        record none (or raise the limits).
     """
 
     jitter_window_px: int = 1
@@ -354,6 +364,7 @@ class SelfCheckParams:
     min_depth_visibility: float = 0.3
     max_unmeasured_depth_mm: float = 20.0
     max_length_mismatch_fraction: float = 0.10
+    max_length_mismatch_px: float = 10.0
 
     def __post_init__(self):
         if int(self.jitter_window_px) != self.jitter_window_px or self.jitter_window_px < 0:
@@ -365,7 +376,7 @@ class SelfCheckParams:
         for name in ("sample_step_px", "max_unexplained_fraction", "max_unexplained_px", "max_off_foreground_fraction",
                      "max_off_foreground_run_fraction", "max_centerline_rms_px",
                      "tip_tangent_px", "max_tip_overhang_px", "kink_chord_mm", "max_strain", "max_kink_px", "max_start_gap_px", "max_unmeasured_depth_mm",
-                     "max_length_mismatch_fraction"):
+                     "max_length_mismatch_fraction", "max_length_mismatch_px"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"SelfCheckParams: {name} must be > 0")
 
@@ -414,10 +425,10 @@ class SelfCheck:
         Camera name -> ``{"unexplained_fraction", "unexplained_px",
         "off_foreground_fraction", "tip_off_foreground_px", "tip_overhang_px", "centerline_rms_px",
         "centerline_max_px", "beyond_tip_contrast", "behind_base_px", "kink_px", "start_gap_px",
-        "unmeasured_depth_mm", "length_mismatch_fraction", "visible_px", "unseen_px"}`` (None where
-        not measured: view not judged, no clean cross-section for the RMS, no joint values for the
-        length, ...). ``behind_base_px``, ``kink_px``, ``start_gap_px``, ``unmeasured_depth_mm`` and
-        ``length_mismatch_fraction`` are the backbone's, the same in every view.
+        "unmeasured_depth_mm", "length_mismatch_fraction", "length_mismatch_px", "visible_px", "unseen_px"}``
+        (None where not measured: view not judged, no clean cross-section for the RMS, no joint values
+        for the length, ...). ``behind_base_px``, ``kink_px``, ``start_gap_px``, ``unmeasured_depth_mm``
+        and the two length figures are the backbone's, the same in every view.
     ms : float
         Wall time of the check (ms).
     """
@@ -1512,6 +1523,12 @@ def _unmeasured_depth_mm(rig: RigCalibration, points_world_mm: np.ndarray, param
     return float(np.max(ends[inner] - starts[inner] + 1)) if inner.any() else 0.0
 
 
+def _sees(cam, point_world_mm: np.ndarray) -> bool:
+    """Whether ``point_world_mm`` (3,) projects into ``cam``'s image, in front of it."""
+    uv, z = cam.project(np.asarray(point_world_mm, np.float64)[None])
+    return bool(z[0] > 1e-6 and np.all(np.isfinite(uv)) and cam.in_image(uv)[0])
+
+
 def _start_gap_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
     """How far in from where the robot must enter the backbone starts (px; see ``SelfCheckParams.max_start_gap_px``).
 
@@ -1525,8 +1542,7 @@ def _start_gap_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
     gaps = []
     for name in rig.names:
         cam = rig[name]
-        uv_b, z_b = cam.project(base[None])
-        if z_b[0] > 1e-6 and np.all(np.isfinite(uv_b)) and cam.in_image(uv_b)[0]:
+        if _sees(cam, base):
             continue
         uv, z = cam.project(first)
         if not (z[0] > 1e-6 and np.all(np.isfinite(uv)) and cam.in_image(uv)[0]):
@@ -1539,15 +1555,26 @@ def _start_gap_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
     return float(np.linalg.norm(first[0] - base) / fp) if np.isfinite(fp) and fp > 0 else 0.0
 
 
-def _length_mismatch(rig: RigCalibration, points_world_mm: np.ndarray, expected_length_mm: float | None) -> float | None:
-    """How far the backbone's length is off the joints' (fraction of it; see ``SelfCheckParams.max_length_mismatch_fraction``).
+#: Arc-length step (mm) over which the backbone's length is compared with the joints' (see
+#: ``SelfCheckParams.max_length_mismatch_fraction``); a 1/20 mm^-1 arc measures under 0.3 % short.
+_LENGTH_STEP_MM = 5.0
 
-    None when ``expected_length_mm`` (mm, from the base along the backbone) is None.
+
+def _length_mismatch(rig: RigCalibration, points_world_mm: np.ndarray, expected_length_mm: float | None) -> tuple:
+    """How far the backbone's length is off the joints': ``(fraction of it, pixel footprints at the tip or None)``.
+
+    See ``SelfCheckParams.max_length_mismatch_fraction``. ``(None, None)`` when
+    ``expected_length_mm`` (mm from the base along the backbone) is None; the
+    footprints are None unless every view sees the base.
     """
     if expected_length_mm is None:
-        return None
-    reach_mm = arc_length(points_world_mm)[-1] + np.linalg.norm(points_world_mm[0] - np.asarray(rig.base_point_world_mm, np.float64))
-    return float(abs(reach_mm - expected_length_mm) / expected_length_mm)
+        return None, None
+    base = np.asarray(rig.base_point_world_mm, np.float64)
+    reach_mm = arc_length(resample_polyline(points_world_mm, _LENGTH_STEP_MM, "spread"))[-1] + np.linalg.norm(points_world_mm[0] - base)
+    off_mm = abs(reach_mm - expected_length_mm)
+    fp = _footprints_mm(rig, points_world_mm[-1:])[0]
+    in_view = all(_sees(rig[name], base) for name in rig.names)
+    return float(off_mm / expected_length_mm), (float(off_mm / fp) if in_view and np.isfinite(fp) and fp > 0 else None)
 
 
 #: Each figure and the :class:`SelfCheckParams` limit it is judged against (figure > limit: the frame is
@@ -1571,6 +1598,8 @@ FIGURE_LIMITS = {
                             "over {x:.0f} mm the tube runs near an epipolar plane: the views do not measure its depth there (limit {lim:.0f} mm)"),
     "length_mismatch_fraction": ("max_length_mismatch_fraction",
                                  "the backbone's length is {pct:.0f} % off the robot's length from the joint values (limit {pct_lim:.0f} %)"),
+    "length_mismatch_px": ("max_length_mismatch_px", "the backbone's length is {x:.0f} px (pixel footprints) off the robot's length "
+                           "from the joint values (limit {lim:.0f} px)"),
     "beyond_tip_contrast": ("max_beyond_tip_contrast", "{cam}: the tube goes on beyond the reprojected tip (contrast {x:.1f}, limit {lim:.1f})"),
     "centerline_rms_px": ("max_centerline_rms_px", "{cam}: the reprojected centerline is {x:.1f} px RMS off the tube's middle (limit {lim:.1f} px)"),
     "centerline_max_px": ("max_centerline_local_px",
@@ -1648,8 +1677,8 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
         others = [model.rig[o] for o in model.rig.names if o != name]
         figures[name] = _judge_view(view, cam, gray, pts, (r_out, r_in), params, others, model.rig.base_point_world_mm)
     shape = {"behind_base_px": _behind_base_px(model.rig, pts), "kink_px": _kink_px(model.rig, pts, r_in, params),
-             "start_gap_px": _start_gap_px(model.rig, pts), "unmeasured_depth_mm": _unmeasured_depth_mm(model.rig, pts, params),
-             "length_mismatch_fraction": _length_mismatch(model.rig, pts, expected_length_mm)}
+             "start_gap_px": _start_gap_px(model.rig, pts), "unmeasured_depth_mm": _unmeasured_depth_mm(model.rig, pts, params)}
+    shape["length_mismatch_fraction"], shape["length_mismatch_px"] = _length_mismatch(model.rig, pts, expected_length_mm)
     for f in figures.values():
         f.update(shape)
     reason = _verdict(figures, params)
