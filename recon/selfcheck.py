@@ -336,6 +336,7 @@ class SelfCheckParams:
     section_width_window_px: float = 63.0
     max_beyond_tip_contrast: float = 1.3
     max_tip_off_foreground_px: float = 8.0
+    max_start_off_foreground_px: float = 8.0
     tip_tangent_px: float = 15.0
     max_tip_overhang_px: float = 8.0
     max_behind_base_px: float = 10.0
@@ -1224,6 +1225,19 @@ def _unseen_share_of(camera, others, ys: np.ndarray, xs: np.ndarray, uvv: np.nda
     return _unseen_share(camera, list(others), ys, xs, uv_g, depth_g, params)
 
 
+def _unsupported_end_px(on: np.ndarray, r_out_end: float, params: SelfCheckParams) -> float | None:
+    """Length (px) of the run of unsupported samples that ends ``on`` (judged samples in order), or None.
+
+    None unless the foreground or the tube's contrast shows the tube just before
+    that run (at least half of the ``2 r_out_end`` px there, at least 5 px): where
+    neither does, the tube is too faint to tell where it ends.
+    """
+    n_tail = int(np.argmax(on[::-1])) if on.any() else on.size
+    n_pre = max(5, int(math.ceil(2.0 * r_out_end / params.sample_step_px)))
+    pre = on[max(0, on.size - n_tail - n_pre):on.size - n_tail]
+    return n_tail * params.sample_step_px if pre.size and pre.mean() >= 0.5 else None
+
+
 def _tip_figures(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.ndarray, finite: np.ndarray,
                  vis: np.ndarray, on: np.ndarray, r_out: np.ndarray, r_in: np.ndarray,
                  face_share: float | None, params: SelfCheckParams) -> tuple:
@@ -1241,10 +1255,7 @@ def _tip_figures(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.
     # neither does, the tube is too faint to tell where it ends (the tip probe's case). A faint tube
     # that its contrast alone shows ends where that contrast ends (wide-3-48 frame 1 of the fast
     # method: a side view followed 67 px of fabric on past the tip, 47 footprints, no foreground before).
-    n_tail = int(np.argmax(on[::-1])) if on.any() else on.size
-    n_pre = max(5, int(math.ceil(2.0 * float(r_out[vis][-1]) / params.sample_step_px)))
-    pre = on[max(0, on.size - n_tail - n_pre):on.size - n_tail]
-    tip_off = n_tail * params.sample_step_px if pre.size and pre.mean() >= 0.5 else None
+    tip_off = _unsupported_end_px(on, float(r_out[vis][-1]), params)
     beyond = None
     if face_share is not None:
         # The tip itself is in view (not behind the base): does the tube go on beyond it?
@@ -1346,7 +1357,7 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     none = {"unexplained_fraction": None, "unexplained_px": None, "off_foreground_fraction": None, "off_foreground_run_fraction": None,
             "centerline_rms_px": None, "centerline_max_px": None,
             "visible_px": 0.0, "unseen_px": None, "beyond_tip_contrast": None, "tip_off_foreground_px": None,
-            "tip_overhang_px": None}
+            "start_off_foreground_px": None, "tip_overhang_px": None}
 
     uv, depth = _dense_projection(camera, points_world_mm, params.sample_step_px)
     finite = np.all(np.isfinite(uv), axis=1) & (depth > 1e-6)
@@ -1412,11 +1423,18 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     overhang = _tip_overhang_px(fg, uvr, r_in_tip, r_in_tip * face, params) if tip_seen and not probe else None
     if _DEBUG is not None:
         _DEBUG[camera.name].update(on=on, lighting=lighting)
+    # The same at the judged curve's start where the robot enters across the border: a backbone that hooks
+    # off the tube there (paper, wide-8-5 frame 2: the first 10 px curl away at the side view's border, 13
+    # footprints). A base in view is the start gap's and the behind-base figure's: the tube is faint or
+    # hidden at the base (wide-3-23 frame 2, fast: 11 px unsupported there, 2.3 footprints).
+    start_off = None
+    if base_world_mm is not None and not _sees(camera, base_world_mm):
+        start_off = _unsupported_end_px(on[::-1], float(r_out[vis][0]), params)
     rms, local = _centerline_figures(fg, uvr, normals, r_out[vis], r_in[vis], params)
     return {"unexplained_fraction": unexplained, "unexplained_px": unexplained_px, "off_foreground_fraction": off,
             "off_foreground_run_fraction": off_run,
             "centerline_rms_px": rms, "centerline_max_px": local, "visible_px": none["visible_px"], "unseen_px": unseen_px, "beyond_tip_contrast": beyond,
-            "tip_off_foreground_px": tip_off, "tip_overhang_px": overhang}
+            "tip_off_foreground_px": tip_off, "start_off_foreground_px": start_off, "tip_overhang_px": overhang}
 
 
 def _footprints_mm(rig: RigCalibration, points_world_mm: np.ndarray) -> np.ndarray:
@@ -1589,6 +1607,8 @@ FIGURE_LIMITS = {
                              "{cam}: {pct:.0f} % of the foreground along the robot is not explained by the backbone (limit {pct_lim:.0f} %)"),
     "unexplained_px": ("max_unexplained_px", "{cam}: {x:.0f} px of tube along the robot are not explained by the backbone (limit {lim:.0f} px)"),
     "tip_off_foreground_px": ("max_tip_off_foreground_px", "{cam}: the reprojected tube's last {x:.0f} px are on neither foreground nor tube contrast (limit {lim:.0f} px)"),
+    "start_off_foreground_px": ("max_start_off_foreground_px",
+                                "{cam}: the reprojected tube's first {x:.0f} px are on neither foreground nor tube contrast (limit {lim:.0f} px)"),
     "tip_overhang_px": ("max_tip_overhang_px", "{cam}: the tube's foreground runs on {x:.0f} px beyond the reprojected tip (limit {lim:.0f} px)"),
     "behind_base_px": ("max_behind_base_px", "the backbone reaches {x:.0f} px (pixel footprints) behind the robot base (limit {lim:.0f} px)"),
     "kink_px": ("max_kink_px", "the backbone bends {x:.0f} px (pixel footprints) more sharply than a tube can (limit {lim:.0f} px)"),
