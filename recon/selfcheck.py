@@ -221,6 +221,16 @@ class SelfCheckParams:
         (nor contrast support) on it: a backbone that runs on beyond the tip
         (or leaves the tube just before the border). 8 px, as a tip cut short:
         the off-foreground share of a long robot hides a 20 px overrun.
+    max_start_off_foreground_px : float
+        The same at the judged curve's start, in a view whose image the base
+        is not in (the robot enters across its border): a backbone that hooks
+        off the tube there (wide-8-5 frame 2 of the paper method: the first
+        10 px at the side view's border, 13 footprints, reported ok). 8 px, as
+        at the tip. Stored backbones of wide seeds 1-3 and 5-8, both methods:
+        good frames read at most 2 px; every frame over 8 px but that one was
+        flagged already. With the base in view the tube is faint or hidden
+        at the base (wide-3-23 frame 2 of the fast method: 11 px, 2.3
+        footprints), and the start gap and behind-base figures judge it.
     tip_tangent_px, max_tip_overhang_px : float
         The *tip overhang*: how far (px) the foreground runs on beyond the
         reprojected tip, within the innermost radius plus

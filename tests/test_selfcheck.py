@@ -153,17 +153,20 @@ def _cropped(camera: Camera, x0: int) -> Camera:
     return Camera(camera.name, camera.width - x0, camera.height, K, camera.dist, camera.T_cam_world)
 
 
-def test_a_robot_entering_from_the_image_border_passes(rendered):
-    # Crop the left of both images until the base (and the actuation unit) is out of view.
-    crops = {}
-    for c in rendered.rig.names:
-        (u_base, _), = rendered.rig[c].project(rendered.rig.base_point_world_mm[None])[0]
-        crops[c] = int(u_base) + 150
+@pytest.fixture(scope="module")
+def entering(rendered):
+    """The rendered frame with the left of both images cropped until the base (and the actuation unit) is out
+    of view: ``(rig, model, images)``."""
+    crops = {c: int(rendered.rig[c].project(rendered.rig.base_point_world_mm[None])[0][0, 0]) + 150 for c in rendered.rig.names}
     rig = RigCalibration({c: _cropped(rendered.rig[c], x0) for c, x0 in crops.items()},
                          rendered.rig.base_point_world_mm, rendered.rig.insertion_axis_world)
-    bg = {c: np.ascontiguousarray(s[:, :, crops[c]:]) for c, s in rendered.background.items()}
+    model = prepare_selfcheck(rig, {c: np.ascontiguousarray(s[:, :, crops[c]:]) for c, s in rendered.background.items()})
     images = {c: np.ascontiguousarray(img[:, crops[c]:]) for c, img in rendered.frame.images.items()}
-    model = prepare_selfcheck(rig, bg)
+    return rig, model, images
+
+
+def test_a_robot_entering_from_the_image_border_passes(rendered, entering):
+    rig, model, images = entering
     for c in rig.names:
         (u_base, _), = rig[c].project(rig.base_point_world_mm[None])[0]
         assert u_base < 0  # the base is outside the view
@@ -171,6 +174,26 @@ def test_a_robot_entering_from_the_image_border_passes(rendered):
     assert good.ok, good.reason
     keep = rendered.s_mm <= 0.8 * rendered.s_mm[-1]
     assert not check_backbone(model, images, rendered.truth[keep], rendered.radii).ok
+
+
+def test_a_backbone_that_hooks_off_the_tube_where_it_enters_is_flagged(rendered, entering):
+    # wide-8-5 frame 2 (paper method): the first 10 px at the side view's border curled off the tube,
+    # 13 footprints; every other figure passed. Here the true backbone's first 14 px in the side view
+    # curl off the tube: moved along the side camera's y axis by up to two tube diameters at the border
+    # (and as much over the 20 px before it, outside the image, so that the judged curve starts off the tube).
+    rig, model, images = entering
+    side = rig["side"]
+    good = check_backbone(model, images, rendered.truth, rendered.radii)
+    assert good.figures["side"]["start_off_foreground_px"] <= 2.0
+    uv, depth = side.project(rendered.truth)
+    first = (uv[:, 0] >= -20.0) & (uv[:, 0] < 14.0)
+    f_px = float(np.sqrt(side.K[0, 0] * side.K[1, 1]))
+    shift_px = 4.0 * f_px * rendered.radii[0] / depth[first] * np.clip(1.0 - uv[first, 0] / 14.0, 0.0, 1.0)
+    hooked = rendered.truth.copy()
+    hooked[first] += (shift_px * depth[first] / f_px)[:, None] * side.T_cam_world[1, :3][None, :]
+    sc = check_backbone(model, images, hooked, rendered.radii)
+    assert not sc.ok
+    assert sc.figures["side"]["start_off_foreground_px"] > SelfCheckParams().max_start_off_foreground_px, sc.figures["side"]
 
 
 def test_jitter_on_a_textured_backdrop_is_not_foreground():
@@ -681,14 +704,10 @@ def test_a_backbone_with_a_spike_no_tube_can_bend_is_flagged(model, rendered):
     assert "more sharply than a tube can" in sc.reason, sc.reason
 
 
-def test_a_backbone_that_starts_short_of_the_border_is_flagged(rendered):
+def test_a_backbone_that_starts_short_of_the_border_is_flagged(rendered, entering):
     # wide-1-63 frame 0 (paper method): with the base out of view, a backbone starting 60 px in
     # from the border left out the robot before it, and no foreground touching its band showed it.
-    crops = {c: int(rendered.rig[c].project(rendered.rig.base_point_world_mm[None])[0][0, 0]) + 150 for c in rendered.rig.names}
-    rig = RigCalibration({c: _cropped(rendered.rig[c], x0) for c, x0 in crops.items()},
-                         rendered.rig.base_point_world_mm, rendered.rig.insertion_axis_world)
-    model = prepare_selfcheck(rig, {c: np.ascontiguousarray(s[:, :, crops[c]:]) for c, s in rendered.background.items()})
-    images = {c: np.ascontiguousarray(img[:, crops[c]:]) for c, img in rendered.frame.images.items()}
+    rig, model, images = entering
     lim = SelfCheckParams().max_start_gap_px
     good = check_backbone(model, images, rendered.truth, rendered.radii)
     assert good.figures["side"]["start_gap_px"] == 0.0  # the true backbone starts outside the views
