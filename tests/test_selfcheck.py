@@ -87,8 +87,9 @@ def test_a_backbone_short_of_the_joints_length_is_flagged_where_the_views_cannot
     good = check_backbone(model, rendered.frame.images, rendered.truth, rendered.radii, expected_length_mm=expected_mm)
     assert good.ok, good.reason
     assert good.figures["top"]["length_mismatch_fraction"] < 0.01 and good.figures["top"]["length_mismatch_px"] < 2.0
-    # The true backbone against joints 15 footprints longer (1.2 % here): within the fraction, not the footprints.
+    # The true backbone against joints 15 footprints longer: within the fraction, not the footprints.
     fp_mm = np.mean([rendered.rig[c].mm_per_pixel_at(rendered.truth[-1]) for c in rendered.rig.names])
+    assert 15 * fp_mm < SelfCheckParams().max_length_mismatch_fraction * expected_mm
     longer = check_backbone(model, rendered.frame.images, rendered.truth, rendered.radii, expected_length_mm=expected_mm + 15 * fp_mm)
     assert not longer.ok and "px (pixel footprints)" in longer.reason, longer.reason
     with pytest.raises(ValueError, match="expected robot length"):
