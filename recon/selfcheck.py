@@ -1422,6 +1422,26 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     # that left the tube where this view cannot see it (wide-5-32 frame 0 of the fast method: a 14 px bulge
     # over a disk of clutter as bright as the tube, 16 % in one run, 16 % in all).
     off_run = _longest_run(~on) / on.size
+    if _DEBUG is not None:
+        _DEBUG[camera.name].update(on=on, lighting=lighting)
+    ends = _end_figures(view, camera, gray, lighting, points_world_mm, radii_mm, base_world_mm, uv, finite, vis, on, fg, uvr,
+                        r_out, r_in, params)
+    rms, local = _centerline_figures(fg, uvr, normals, r_out[vis], r_in[vis], params)
+    return {"unexplained_fraction": unexplained, "unexplained_px": unexplained_px, "off_foreground_fraction": off,
+            "off_foreground_run_fraction": off_run,
+            "centerline_rms_px": rms, "centerline_max_px": local, "visible_px": none["visible_px"], "unseen_px": unseen_px, **ends}
+
+
+def _end_figures(view: _ViewModel, camera, gray: np.ndarray, lighting: Lighting, points_world_mm: np.ndarray, radii_mm: tuple,
+                 base_world_mm, uv: np.ndarray, finite: np.ndarray, vis: np.ndarray, on: np.ndarray, fg: np.ndarray,
+                 uvr: np.ndarray, r_out: np.ndarray, r_in: np.ndarray, params: SelfCheckParams) -> dict:
+    """The figures of the judged curve's ends in one view: ``beyond_tip_contrast``, ``tip_off_foreground_px``,
+    ``tip_overhang_px`` and ``start_off_foreground_px`` (None where not measured).
+
+    ``uv`` the dense reprojection, ``finite`` / ``vis`` its finite and judged samples, ``on`` per judged
+    sample: supported; ``fg`` the foreground and ``uvr`` the judged samples in its region's coordinates;
+    ``r_out`` / ``r_in`` the radii (px) per dense sample.
+    """
     # The tip itself in view (not behind the base): the probe looks beyond it; the overhang stands in for the
     # probe where that cannot run (masks have no contrast to probe): on camera images near the 10-footprint
     # line it only traded good frames for wrong ones (wide seeds 2/3).
@@ -1431,8 +1451,6 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     tip_off, beyond = _tip_figures(view, gray, lighting, uv, finite, vis, on, r_out, r_in, face if probe else None, params)
     r_in_tip = float(r_in[finite][-1])
     overhang = _tip_overhang_px(fg, uvr, r_in_tip, r_in_tip * face, params) if tip_seen and not probe else None
-    if _DEBUG is not None:
-        _DEBUG[camera.name].update(on=on, lighting=lighting)
     # The same at the judged curve's start where the robot enters across the border: a backbone that hooks
     # off the tube there (paper, wide-8-5 frame 2: the first 10 px curl away at the side view's border, 13
     # footprints). A base in view is the start gap's and the behind-base figure's: the tube is faint or
@@ -1440,11 +1458,8 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     start_off = None
     if base_world_mm is not None and not _sees(camera, base_world_mm):
         start_off = _unsupported_end_px(on[::-1], float(r_out[vis][0]), params)
-    rms, local = _centerline_figures(fg, uvr, normals, r_out[vis], r_in[vis], params)
-    return {"unexplained_fraction": unexplained, "unexplained_px": unexplained_px, "off_foreground_fraction": off,
-            "off_foreground_run_fraction": off_run,
-            "centerline_rms_px": rms, "centerline_max_px": local, "visible_px": none["visible_px"], "unseen_px": unseen_px, "beyond_tip_contrast": beyond,
-            "tip_off_foreground_px": tip_off, "start_off_foreground_px": start_off, "tip_overhang_px": overhang}
+    return {"beyond_tip_contrast": beyond, "tip_off_foreground_px": tip_off, "start_off_foreground_px": start_off,
+            "tip_overhang_px": overhang}
 
 
 def _footprints_mm(rig: RigCalibration, points_world_mm: np.ndarray) -> np.ndarray:
