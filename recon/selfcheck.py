@@ -266,7 +266,16 @@ class SelfCheckParams:
         chord ``kink_chord_mm`` either side of a point, less the sagitta of an
         arc of the tightest curvature the innermost tube allows,
         ``max_strain / r_in`` (``kappa * L**2 / 2``), in pixel footprints
-        there; above ``max_kink_px`` the backbone is not a tube's shape.
+        there; above ``max_kink_px`` the backbone is not a tube's shape. Where
+        the frame's joint values say which tubes cover each point
+        (``tube_sections_mm``), the radius is the outermost tube's there: the
+        robot bends no more sharply than its outer surface allows (wide-6-32
+        frame 2 of the paper method: a 1 mm zigzag 6-9 mm from the base, inside
+        the outer tube, 17.6 footprints, read 2.1 against the inner tube's
+        radius and 9.4 against the outer's). Stored backbones of wide seeds 1-3
+        and 5-9, both methods: two more good paper frames read over 5
+        (wide-7-6 frame 0, 8.4 footprints off, 5.19; wide-1-41 frame 2, 9.3,
+        5.14), and no other frame's verdict moved.
     max_start_gap_px : float
         The robot is joined to its base. Where the base is outside a view, the
         robot enters that view at its border, so a backbone must start at (or
@@ -1499,13 +1508,30 @@ def _behind_base_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
     return float(np.max(np.linalg.norm(off, axis=1) / fp[on]))
 
 
-def _kink_px(rig: RigCalibration, points_world_mm: np.ndarray, r_in_mm: float, params: SelfCheckParams) -> float:
-    """How much more sharply the backbone bends than its innermost tube can (pixel footprints; 0 when it does not).
+def _radius_along_mm(rig: RigCalibration, points_world_mm: np.ndarray, s_mm: np.ndarray, r_in_mm: float, tube_sections_mm) -> np.ndarray:
+    """The radius (mm) of the outermost tube at backbone arc lengths ``s_mm``: ``r_in_mm`` without ``tube_sections_mm``.
+
+    ``tube_sections_mm``: ``(extension_mm, radius_mm)`` per tube, outermost first (tube i covers the
+    backbone out to its extension from the base). The backbone's arc lengths are counted from the
+    base: its own plus the straight distance from the base to its first point.
+    """
+    if not tube_sections_mm:
+        return np.full(s_mm.shape, r_in_mm)
+    s_base = s_mm + float(np.linalg.norm(points_world_mm[0] - np.asarray(rig.base_point_world_mm, np.float64)))
+    r = np.full(s_mm.shape, min(r for _, r in tube_sections_mm))
+    for ext_mm, r_mm in reversed(tube_sections_mm):  # outer tubes last: where they cover, they set the radius
+        r = np.where(s_base <= ext_mm, r_mm, r)
+    return r
+
+
+def _kink_px(rig: RigCalibration, points_world_mm: np.ndarray, r_in_mm: float, params: SelfCheckParams, tube_sections_mm=None) -> float:
+    """How much more sharply the backbone bends than its tubes can (pixel footprints; 0 when it does not).
 
     The largest sagitta (mm) of the backbone over the chord from ``kink_chord_mm``
     before to as far after each point, less ``kappa L**2 / 2`` of the tightest
-    bend ``kappa = max_strain / r_in_mm`` (1/mm), over the cameras' mean footprint
-    there. Points nearer an end than the chord are not measured.
+    bend ``kappa = max_strain / r`` (1/mm), ``r`` the outermost tube's radius there
+    (:func:`_radius_along_mm`; the innermost's, ``r_in_mm``, without tube sections),
+    over the cameras' mean footprint there. Points nearer an end than the chord are not measured.
     """
     L = float(params.kink_chord_mm)
     s = arc_length(points_world_mm)
@@ -1517,7 +1543,8 @@ def _kink_px(rig: RigCalibration, points_world_mm: np.ndarray, r_in_mm: float, p
     ab = points_at_arc_length(points_world_mm, s[mid] + L) - a
     t = np.clip(np.sum((p - a) * ab, axis=1) / np.maximum(np.sum(ab * ab, axis=1), 1e-12), 0.0, 1.0)
     sagitta_mm = np.linalg.norm(p - a - t[:, None] * ab, axis=1)
-    excess_px = (sagitta_mm - 0.5 * params.max_strain / r_in_mm * L * L) / _footprints_mm(rig, p)
+    r_mm = _radius_along_mm(rig, points_world_mm, s[mid], r_in_mm, tube_sections_mm)
+    excess_px = (sagitta_mm - 0.5 * params.max_strain / r_mm * L * L) / _footprints_mm(rig, p)
     excess_px = excess_px[np.isfinite(excess_px)]
     return float(max(0.0, excess_px.max())) if excess_px.size else 0.0
 
@@ -1664,7 +1691,7 @@ def _verdict(figures: dict, params: SelfCheckParams) -> str | None:
 
 
 def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_radii_mm, params: SelfCheckParams = SelfCheckParams(),
-                   expected_length_mm: float | None = None) -> SelfCheck:
+                   expected_length_mm: float | None = None, tube_sections_mm=None) -> SelfCheck:
     """Judge a backbone against the frame it was reconstructed from.
 
     Parameters
@@ -1683,6 +1710,11 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
         The robot's length from the frame's joint values (mm from the base to
         the tip along the backbone, ``max(extension_mm)``); None where the
         frame has none (the length is then not judged).
+    tube_sections_mm : sequence of (extension_mm, radius_mm), optional
+        Per tube, outermost first: how far it reaches from the base along the
+        backbone (the frame's joint values) and its outer radius (mm). The kink
+        figure then allows each point the bend of the outermost tube there; without
+        them, of the innermost tube everywhere.
 
     Returns
     -------
@@ -1708,6 +1740,10 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
     r_in = min(r_in, r_out)
     if expected_length_mm is not None and not (math.isfinite(expected_length_mm) and expected_length_mm > 0):
         raise ValueError(f"self-check: the expected robot length must be > 0 mm, got {expected_length_mm}")
+    if tube_sections_mm is not None:
+        tube_sections_mm = tuple((float(e), float(r)) for e, r in tube_sections_mm)
+        if not all(math.isfinite(e) and math.isfinite(r) and r > 0 for e, r in tube_sections_mm):
+            raise ValueError(f"self-check: tube sections must be finite (extension_mm, radius_mm > 0) pairs, got {tube_sections_mm}")
     figures = {}
     for name, view in model.views.items():
         cam = model.rig[name]
@@ -1721,7 +1757,7 @@ def check_backbone(model: SelfCheckModel, images: dict, points_world_mm, tube_ra
         gray = _steadied(view, gray)
         others = [model.rig[o] for o in model.rig.names if o != name]
         figures[name] = _judge_view(view, cam, gray, pts, (r_out, r_in), params, others, model.rig.base_point_world_mm)
-    shape = {"behind_base_px": _behind_base_px(model.rig, pts), "kink_px": _kink_px(model.rig, pts, r_in, params),
+    shape = {"behind_base_px": _behind_base_px(model.rig, pts), "kink_px": _kink_px(model.rig, pts, r_in, params, tube_sections_mm),
              "start_gap_px": _start_gap_px(model.rig, pts), "unmeasured_depth_mm": _unmeasured_depth_mm(model.rig, pts, params)}
     shape["length_mismatch_fraction"], shape["length_mismatch_px"] = _length_mismatch(model.rig, pts, expected_length_mm)
     for f in figures.values():

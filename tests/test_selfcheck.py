@@ -678,9 +678,9 @@ def test_a_backbone_that_starts_behind_the_base_is_flagged(model, rendered):
         assert (_check(model, rendered, start).figures["side"]["behind_base_px"] > SelfCheckParams().max_behind_base_px) == flagged
 
 
-def _spiked(truth, s_mm, height_mm: float, half_width_mm: float):
-    """The truth with a V-shaped spike of ``height_mm`` across it, ``2 half_width_mm`` wide, half way along."""
-    s_mid = 0.5 * s_mm[-1]
+def _spiked(truth, s_mm, height_mm: float, half_width_mm: float, s_mid: float | None = None):
+    """The truth with a V-shaped spike of ``height_mm`` across it, ``2 half_width_mm`` wide, at ``s_mid`` (default half way along)."""
+    s_mid = 0.5 * s_mm[-1] if s_mid is None else s_mid
     w = np.clip(1.0 - np.abs(s_mm - s_mid) / half_width_mm, 0.0, None)
     i = int(np.argmin(np.abs(s_mm - s_mid)))
     t = truth[i + 1] - truth[i - 1]
@@ -703,6 +703,27 @@ def test_a_backbone_with_a_spike_no_tube_can_bend_is_flagged(model, rendered):
                            max_unexplained_px=1e9, max_centerline_rms_px=1e9)
     sc = check_backbone(model, rendered.frame.images, spiked, rendered.radii, only)
     assert "more sharply than a tube can" in sc.reason, sc.reason
+
+
+def test_the_kink_allows_the_bend_of_the_outermost_tube_where_the_joints_put_it(model, rendered, paper_scene):
+    # wide-6-32 frame 2 (paper method): a 1 mm zigzag inside the outer tube passed against the inner
+    # tube's strain limit. A V at 25 mm, inside the outer tube (out to 50 mm), between what the two
+    # radii allow: under the limit against the inner tube's, over it against the outer's.
+    lim, P = SelfCheckParams().max_kink_px, SelfCheckParams()
+    r_out, r_in = rendered.radii
+    s_mid = 25.0
+    fp_mm = np.mean([rendered.rig[c].mm_per_pixel_at(rendered.truth[np.argmin(np.abs(rendered.s_mm - s_mid))]) for c in rendered.rig.names])
+    allow = {r: 0.5 * P.max_strain / r * P.kink_chord_mm ** 2 for r in (r_out, r_in)}
+    height = 0.5 * (allow[r_out] + allow[r_in]) + lim * fp_mm
+    spiked = _spiked(rendered.truth, rendered.s_mm, height, 1.0, s_mid)
+    ext = rendered.frame.joints.extension_mm
+    assert ext[0] > s_mid + P.kink_chord_mm  # the V and its chord are inside the outer tube
+    sections = tuple(zip(ext, [t.outer_diameter_mm / 2 for t in paper_scene.robot.tubes]))
+    without = check_backbone(model, rendered.frame.images, spiked, rendered.radii).figures["side"]["kink_px"]
+    with_sections = check_backbone(model, rendered.frame.images, spiked, rendered.radii, tube_sections_mm=sections).figures["side"]["kink_px"]
+    assert without < lim < with_sections, (without, with_sections)
+    # The true backbone is within both.
+    assert check_backbone(model, rendered.frame.images, rendered.truth, rendered.radii, tube_sections_mm=sections).figures["side"]["kink_px"] < 0.5 * lim
 
 
 def test_a_backbone_that_starts_short_of_the_border_is_flagged(rendered, entering):

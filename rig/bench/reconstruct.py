@@ -50,10 +50,11 @@ from rig.rundir import (
 )
 from rig.scoring import score_frame
 from rig.session import Session, SessionError
+from rig.session_checks import tube_radii_mm
 from rig.tables import cell
 
 __all__ = ["reconstruct_session", "load_background_frames", "format_table",
-           "selfcheck_tube_radii_mm", "joint_length_mm", "selfcheck_record", "checked_result"]
+           "selfcheck_tube_radii_mm", "joint_length_mm", "joint_tube_sections_mm", "selfcheck_record", "checked_result"]
 
 #: Per-frame statuses: reconstructed and passed the self-check, reconstructed but the
 #: self-check doubts it, not reconstructed.
@@ -127,17 +128,32 @@ def joint_length_mm(frame) -> float | None:
     return float(max(ext))
 
 
+def joint_tube_sections_mm(session: Session, frame):
+    """Per tube, outermost first, ``(extension_mm, outer radius_mm)`` from the frame's joint values and the
+    session's robot, or None where either is missing (or their tube counts differ).
+
+    Tube i covers the backbone from the base out to its extension (docs/scenes.md); the self-check's
+    kink figure allows each point the bend of the outermost tube there.
+    """
+    ext = frame.extension_mm
+    radii = tube_radii_mm(session.meta.get("robot"), session.dir / "session.json")
+    if not ext or len(radii) != len(ext) or not all(math.isfinite(e) for e in ext):
+        return None
+    return tuple(zip((float(e) for e in ext), radii))
+
+
 def selfcheck_record(rec: dict, check_model, images: dict, pts: np.ndarray, radii_mm, params: SelfCheckParams,
-                     expected_length_mm: float | None = None) -> None:
+                     expected_length_mm: float | None = None, tube_sections_mm=None) -> None:
     """Judge a reconstructed backbone and record the verdict in its per-frame record.
 
     Sets ``rec["selfcheck"]`` (``recon.selfcheck.SelfCheck.to_dict``) and, when
     the check fails, ``status = "suspect"`` with the check's reason. A check
     that cannot run makes the frame suspect too: an unverified shape must not
-    pass as ``ok``. ``expected_length_mm``: :func:`joint_length_mm` of the frame.
+    pass as ``ok``. ``expected_length_mm`` and ``tube_sections_mm``: :func:`joint_length_mm` and
+    :func:`joint_tube_sections_mm` of the frame.
     """
     try:
-        sc = check_backbone(check_model, images, pts, radii_mm, params, expected_length_mm)
+        sc = check_backbone(check_model, images, pts, radii_mm, params, expected_length_mm, tube_sections_mm)
     except Exception as exc:  # noqa: BLE001 - a crashing check must not cost the frame
         if os.environ.get("CTR_BENCH_DEBUG") and not isinstance(exc, ValueError):
             raise
@@ -150,7 +166,7 @@ def selfcheck_record(rec: dict, check_model, images: dict, pts: np.ndarray, radi
 
 
 def checked_result(rec: dict, result, check_model, images: dict, radii_mm, params: SelfCheckParams,
-                   expected_length_mm: float | None = None) -> tuple:
+                   expected_length_mm: float | None = None, tube_sections_mm=None) -> tuple:
     """The reading of a frame that the self-check passes, judged into ``rec``: ``(result, backbone (n, 3) world mm)``.
 
     A method may offer a second reading of the frame (``result.alternative``: the fast method's
@@ -164,13 +180,13 @@ def checked_result(rec: dict, result, check_model, images: dict, radii_mm, param
     if alt is not None:
         trial = dict(rec)
         alt_pts = _backbone_points(alt)
-        selfcheck_record(trial, check_model, images, alt_pts, radii_mm, params, expected_length_mm)
+        selfcheck_record(trial, check_model, images, alt_pts, radii_mm, params, expected_length_mm, tube_sections_mm)
         record_doubt(trial, alt, checked=True)
         if trial["status"] == "ok":
             rec.update(trial, reading="alternative")
             return alt, alt_pts
     pts = _backbone_points(result)
-    selfcheck_record(rec, check_model, images, pts, radii_mm, params, expected_length_mm)
+    selfcheck_record(rec, check_model, images, pts, radii_mm, params, expected_length_mm, tube_sections_mm)
     if alt is not None:
         rec["reading"] = "own"
     return result, pts
@@ -232,7 +248,8 @@ def _reconstruct_and_judge(rec: dict, session: Session, fr, reconstruct, check_m
     result = reconstruct(images)
     rec["ms"] = 1e3 * (time.perf_counter() - t0)
     if check_model is not None:
-        result, pts = checked_result(rec, result, check_model, images, radii_mm, selfcheck, joint_length_mm(fr))
+        result, pts = checked_result(rec, result, check_model, images, radii_mm, selfcheck, joint_length_mm(fr),
+                                     joint_tube_sections_mm(session, fr))
     else:
         pts = _backbone_points(result)
     rec.update(jump_record(result))  # the fast method's temporal check: recorded, the status stays the self-check's
