@@ -1614,10 +1614,9 @@ def _start_gap_px(rig: RigCalibration, points_world_mm: np.ndarray) -> float:
         cam = rig[name]
         if _sees(cam, base):
             continue
-        uv, z = cam.project(first)
-        if not (z[0] > 1e-6 and np.all(np.isfinite(uv)) and cam.in_image(uv)[0]):
+        if not _sees(cam, first[0]):
             return 0.0
-        u, v = uv[0] + 0.5  # from the image's outer edge, half a pixel beyond the border pixels' centres
+        u, v = cam.project(first)[0][0] + 0.5  # from the image's outer edge, half a pixel beyond the border pixels' centres
         gaps.append(min(u, v, cam.width - u, cam.height - v))
     if gaps:
         return float(max(0.0, min(gaps)))
