@@ -950,13 +950,6 @@ def _profile_offsets(fg: np.ndarray, uv_roi: np.ndarray, normals: np.ndarray, r_
     return out, widths
 
 
-def _band_half(view: _ViewModel, v: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """The background band's half-width (gray levels, at least 1) at pixels ``(u, v)``: what a difference from the
-    background mean is measured in (the unmoved band's where frames are moved back by their jitter)."""
-    half = 0.5 * (view.hi[v, u] - view.lo[v, u]) if view.contrast_half is None else view.contrast_half[v, u]
-    return np.maximum(half, 1.0)
-
-
 def _contrast_profiles(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.ndarray, normals: np.ndarray,
                        r_out_px: np.ndarray, r_in_px: np.ndarray, params: SelfCheckParams) -> tuple:
     """Per point: the image's difference from the background across the tube's middle, and just beside the band.
@@ -976,7 +969,8 @@ def _contrast_profiles(view: _ViewModel, gray: np.ndarray, lighting: Lighting, u
         v = np.rint(pts[..., 1]).astype(np.int64)
         ins = (u >= 0) & (u < w) & (v >= 0) & (v < h)
         ui, vi = u[ins], v[ins]
-        half = _band_half(view, vi, ui)
+        half = 0.5 * (view.hi[vi, ui] - view.lo[vi, ui]) if view.contrast_half is None else view.contrast_half[vi, ui]
+        half = np.maximum(half, 1.0)
         out = np.full(u.shape, np.nan, np.float32)
         out[ins] = np.abs(lighting.normalize(gray[vi, ui], ui, vi) - view.mean[vi, ui]) / half
         return out
@@ -1250,67 +1244,29 @@ def _unseen_share_of(camera, others, ys: np.ndarray, xs: np.ndarray, uvv: np.nda
     return _unseen_share(camera, list(others), ys, xs, uv_g, depth_g, params)
 
 
-def _unsupported_end_px(on: np.ndarray, r_out_end: float, params: SelfCheckParams, hidden=None) -> float | None:
+def _unsupported_end_px(on: np.ndarray, r_out_end: float, params: SelfCheckParams) -> float | None:
     """Length (px) of the run of unsupported samples that ends ``on`` (judged samples in order), or None.
 
     None unless the foreground or the tube's contrast shows the tube just before
     that run (at least half of the ``2 r_out_end`` px there, at least 5 px): where
-    neither does, the tube is too faint to tell where it ends. ``hidden(tail,
-    pre)``, given the indices of the run and of the supported samples just before
-    it, says which samples of the run could not show the tube (:func:`_camouflaged`):
-    they are not counted.
+    neither does, the tube is too faint to tell where it ends.
     """
     n_tail = int(np.argmax(on[::-1])) if on.any() else on.size
     n_pre = max(5, int(math.ceil(2.0 * r_out_end / params.sample_step_px)))
-    pre = np.arange(max(0, on.size - n_tail - n_pre), on.size - n_tail)
-    if not pre.size or on[pre].mean() < 0.5:
-        return None
-    tail = np.arange(on.size - n_tail, on.size)
-    n_hidden = int(np.count_nonzero(hidden(tail, pre[on[pre]]))) if hidden is not None and tail.size else 0
-    return (n_tail - n_hidden) * params.sample_step_px
-
-
-def _camouflaged(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.ndarray, normals: np.ndarray,
-                 r_in: np.ndarray, tail: np.ndarray, pre: np.ndarray, params: SelfCheckParams) -> np.ndarray:
-    """(len(tail),) bool: samples ``tail`` where the tube, as gray as at samples ``pre``, would show neither way.
-
-    The tube's gray (normalized to the background's lighting) is read at the
-    samples ``pre``, where the tube shows, across its middle (the centre and half
-    the innermost radius ``r_in`` (px) either side along ``normals``: the median
-    of each). At a sample of ``tail`` the tube is camouflaged where all three lie
-    within the background band there and differ from its mean by less than
-    ``contrast_min`` band half-widths (:func:`_contrast_support`): neither the
-    foreground nor the contrast could show it, and a tube that ends there and one
-    that goes on look alike (wide-7-37 frame 1 of the fast method: the side
-    view's last 20 px over printed letters as gray as the tube, 1.0 footprint off).
-    """
-    if not pre.size:
-        return np.zeros(tail.size, bool)
-    h, w = gray.shape[:2]
-    across = np.array([-0.5, 0.0, 0.5])
-
-    def pixels(idx):
-        p = uv[idx, None, :] + across[None, :, None] * (r_in[idx, None, None] * normals[idx, None, :])
-        return (np.clip(np.rint(p[..., 1]).astype(np.int64), 0, h - 1), np.clip(np.rint(p[..., 0]).astype(np.int64), 0, w - 1))
-
-    v, u = pixels(pre)
-    tube = np.median(lighting.normalize(gray[v, u], u, v), axis=0)
-    v, u = pixels(tail)
-    inside = (view.lo[v, u] <= tube) & (tube <= view.hi[v, u])
-    faint = np.abs(tube - view.mean[v, u]) < params.contrast_min * _band_half(view, v, u)
-    return np.all(inside & faint, axis=1)
+    pre = on[max(0, on.size - n_tail - n_pre):on.size - n_tail]
+    return n_tail * params.sample_step_px if pre.size and pre.mean() >= 0.5 else None
 
 
 def _tip_figures(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.ndarray, finite: np.ndarray,
                  vis: np.ndarray, on: np.ndarray, r_out: np.ndarray, r_in: np.ndarray,
-                 face_share: float | None, params: SelfCheckParams, hidden=None) -> tuple:
+                 face_share: float | None, params: SelfCheckParams) -> tuple:
     """``(tip_off_foreground_px, beyond_tip_contrast)`` of one view, each None where not measured.
 
     ``uv`` the dense reprojection, ``finite`` and ``vis`` its finite and judged samples,
     ``on`` per judged sample: supported (foreground or contrast),
     ``r_out`` / ``r_in`` the radii (px) per dense sample, ``face_share`` the end face's
     reach beyond the tip in tube radii (:func:`_end_face_share`), None where the tip probe
-    does not run; ``hidden`` as in :func:`_unsupported_end_px`.
+    does not run.
     """
     # The end of the judged curve with nothing on it: a backbone that runs on beyond the tip
     # (the share above hides a 20 px overrun of a long robot). Only where the foreground or the
@@ -1318,7 +1274,7 @@ def _tip_figures(view: _ViewModel, gray: np.ndarray, lighting: Lighting, uv: np.
     # neither does, the tube is too faint to tell where it ends (the tip probe's case). A faint tube
     # that its contrast alone shows ends where that contrast ends (wide-3-48 frame 1 of the fast
     # method: a side view followed 67 px of fabric on past the tip, 47 footprints, no foreground before).
-    tip_off = _unsupported_end_px(on, float(r_out[vis][-1]), params, hidden)
+    tip_off = _unsupported_end_px(on, float(r_out[vis][-1]), params)
     beyond = None
     if face_share is not None:
         # The tip itself is in view (not behind the base): does the tube go on beyond it?
@@ -1478,7 +1434,7 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
     if _DEBUG is not None:
         _DEBUG[camera.name].update(on=on, lighting=lighting)
     ends = _end_figures(view, camera, gray, lighting, points_world_mm, radii_mm, base_world_mm, uv, finite, vis, on, fg, uvr,
-                        normals, r_out, r_in, params)
+                        r_out, r_in, params)
     rms, local = _centerline_figures(fg, uvr, normals, r_out[vis], r_in[vis], params)
     return {"unexplained_fraction": unexplained, "unexplained_px": unexplained_px, "off_foreground_fraction": off,
             "off_foreground_run_fraction": off_run,
@@ -1487,31 +1443,21 @@ def _judge_view(view: _ViewModel, camera, gray: np.ndarray, points_world_mm: np.
 
 def _end_figures(view: _ViewModel, camera, gray: np.ndarray, lighting: Lighting, points_world_mm: np.ndarray, radii_mm: tuple,
                  base_world_mm, uv: np.ndarray, finite: np.ndarray, vis: np.ndarray, on: np.ndarray, fg: np.ndarray,
-                 uvr: np.ndarray, normals: np.ndarray, r_out: np.ndarray, r_in: np.ndarray, params: SelfCheckParams) -> dict:
+                 uvr: np.ndarray, r_out: np.ndarray, r_in: np.ndarray, params: SelfCheckParams) -> dict:
     """The figures of the judged curve's ends in one view: ``beyond_tip_contrast``, ``tip_off_foreground_px``,
     ``tip_overhang_px`` and ``start_off_foreground_px`` (None where not measured).
 
     ``uv`` the dense reprojection, ``finite`` / ``vis`` its finite and judged samples, ``on`` per judged
-    sample: supported; ``fg`` the foreground and ``uvr`` the judged samples in its region's coordinates,
-    ``normals`` theirs; ``r_out`` / ``r_in`` the radii (px) per dense sample. An unsupported end is counted
-    only where the tube would show (:func:`_camouflaged`).
+    sample: supported; ``fg`` the foreground and ``uvr`` the judged samples in its region's coordinates;
+    ``r_out`` / ``r_in`` the radii (px) per dense sample.
     """
-    uvv, r_in_v = uv[vis], r_in[vis]
-
-    def hidden(tail, pre):
-        return _camouflaged(view, gray, lighting, uvv, normals, r_in_v, tail, pre, params)
-
-    def hidden_start(tail, pre):  # the same, indices counted from the start
-        return hidden(on.size - 1 - tail, on.size - 1 - pre)
-
     # The tip itself in view (not behind the base): the probe looks beyond it; the overhang stands in for the
     # probe where that cannot run (masks have no contrast to probe): on camera images near the 10-footprint
     # line it only traded good frames for wrong ones (wide seeds 2/3).
     tip_seen = bool(vis[np.flatnonzero(finite)[-1]])
     face = _end_face_share(camera, points_world_mm, 2.0 * radii_mm[0]) if tip_seen else 0.0
     probe = tip_seen and params.tip_probe_px > 0 and not view.binary
-    tip_off, beyond = _tip_figures(view, gray, lighting, uv, finite, vis, on, r_out, r_in, face if probe else None, params,
-                                   None if view.binary else hidden)
+    tip_off, beyond = _tip_figures(view, gray, lighting, uv, finite, vis, on, r_out, r_in, face if probe else None, params)
     r_in_tip = float(r_in[finite][-1])
     overhang = _tip_overhang_px(fg, uvr, r_in_tip, r_in_tip * face, params) if tip_seen and not probe else None
     # The same at the judged curve's start where the robot enters across the border: a backbone that hooks
@@ -1520,7 +1466,7 @@ def _end_figures(view: _ViewModel, camera, gray: np.ndarray, lighting: Lighting,
     # hidden at the base (wide-3-23 frame 2, fast: 11 px unsupported there, 2.3 footprints).
     start_off = None
     if base_world_mm is not None and not _sees(camera, base_world_mm):
-        start_off = _unsupported_end_px(on[::-1], float(r_out[vis][0]), params, None if view.binary else hidden_start)
+        start_off = _unsupported_end_px(on[::-1], float(r_out[vis][0]), params)
     return {"beyond_tip_contrast": beyond, "tip_off_foreground_px": tip_off, "start_off_foreground_px": start_off,
             "tip_overhang_px": overhang}
 

@@ -14,7 +14,6 @@ import pytest
 
 from recon.camera import Camera
 from recon.rigcal import RigCalibration
-from recon import selfcheck
 from recon.selfcheck import SelfCheckParams, check_backbone, fit_lighting, foreground_roi, prepare_selfcheck
 
 N_BACKGROUND = 6
@@ -641,60 +640,6 @@ def test_a_backbone_that_runs_on_beyond_the_tip_is_flagged(model, rendered):
     assert all(f["off_foreground_fraction"] < SelfCheckParams().max_off_foreground_fraction for f in sc.figures.values())
     assert all(f["tip_off_foreground_px"] is not None and f["tip_off_foreground_px"] <= 1.0
                for f in _check(model, rendered, rendered.truth).figures.values())
-
-
-def _camouflaged_tip(rendered, cam: str, tail_mm: float):
-    """Background frames and the frame with the backdrop around the last ``tail_mm`` of the tube of view
-    ``cam`` (and as far on beyond the tip) painted the tube's median gray, flickering by up to 16 gray
-    levels from one background frame to the next (a textured backdrop under jitter), and the inner tube's
-    shading flattened (a thin tube's, by the blur): a backdrop that shows the tube neither as foreground nor
-    as contrast."""
-    import cv2
-
-    c = rendered.rig[cam]
-    t = rendered.truth[-1] - rendered.truth[-5]
-    t /= np.linalg.norm(t)
-    tail = rendered.s_mm >= rendered.s_mm[-1] - tail_mm
-    pts = np.concatenate([rendered.truth[tail], rendered.truth[-1] + np.outer(np.linspace(0.2, tail_mm, 10), t)])
-    uv, _ = c.project(pts)
-    r_px = rendered.radii[0] / c.mm_per_pixel_at(rendered.truth[-1])
-    patch = np.zeros(rendered.frame.images[cam].shape[:2], np.uint8)
-    cv2.polylines(patch, [np.round(uv * 16).astype(np.int32)], False, 1, thickness=2 * int(np.ceil(r_px)) + 15, shift=4)
-    patch = patch > 0
-    lab = rendered.frame.labels[cam]
-    gray = float(np.median(rendered.frame.images[cam][lab == lab.max()]))
-    background = dict(rendered.background)
-    background[cam] = rendered.background[cam].copy()
-    flicker = np.linspace(-16.0, 16.0, len(background[cam]))
-    for k, d in enumerate(flicker):
-        background[cam][k][patch] = np.uint8(round(gray + d))
-    images = dict(rendered.frame.images)
-    img = images[cam].astype(np.float32)
-    img[patch & (lab == 0)] = gray
-    tube = lab == lab.max()
-    img[tube] = gray + 0.25 * (img[tube] - gray)  # its shading flattened, as a thin tube's is by the blur
-    images[cam] = np.clip(np.rint(img), 0, 255).astype(np.uint8)
-    return background, images, patch
-
-
-def test_a_tip_over_a_backdrop_as_gray_as_the_tube_is_not_an_unsupported_end(rendered, monkeypatch):
-    # wide-7-37 frame 1 (fast): the side view's last 20 px of tube cross printed letters as gray as the
-    # tube; nothing there is foreground or contrast, and the right backbone (1.0 footprint off) was flagged
-    # for an unsupported end. Where the tube, as gray as it shows just before, would be inside the band,
-    # its absence says nothing.
-    background, images, patch = _camouflaged_tip(rendered, "side", 3.0)
-    model = prepare_selfcheck(rendered.rig, background)
-    sc = check_backbone(model, images, rendered.truth, rendered.radii)
-    assert sc.ok, sc.reason
-    assert sc.figures["side"]["tip_off_foreground_px"] <= 1.0
-    # Counting every sample, that end reads as the unsupported end of a backbone run on past the tip.
-    with monkeypatch.context() as m:
-        m.setattr(selfcheck, "_camouflaged", lambda view, gray, lighting, uv, normals, r_in, tail, pre, params: np.zeros(tail.size, bool))
-        blind = check_backbone(model, images, rendered.truth, rendered.radii)
-    assert blind.figures["side"]["tip_off_foreground_px"] > SelfCheckParams().max_tip_off_foreground_px
-    # Over the same backdrop patch, a backbone cut short by 3 mm is still told by the top view.
-    keep = rendered.s_mm <= rendered.s_mm[-1] - 3.0
-    assert not check_backbone(model, images, rendered.truth[keep], rendered.radii).ok
 
 
 def test_a_backbone_that_runs_on_beyond_a_faint_tip_is_flagged_where_contrast_shows_the_tube(model, rendered):
