@@ -34,6 +34,20 @@ def test_rows_written_for_every_frame_and_method(report):
     assert set(rep["classes"]["fast"]) == set(widebench.CLASS_KEYS)
 
 
+def test_the_worst_frames_are_drawn_for_looking_at(report):
+    # Each method's worst frames (by max error) as PNGs in OUT/pictures, read back with OpenCV as a user would.
+    import cv2
+
+    rep, out = report
+    assert rep["worst"]
+    for w in rep["worst"]:
+        name = f"pictures/{w['method']}-{w['scene']}-f{w['frame']}.png"
+        assert name in rep["pictures"], (name, rep["pictures"])
+        img = cv2.imread(str(out / name))
+        assert img is not None and img.shape[0] > 100 and img.shape[1] > 100, name
+    assert sorted(p.name for p in (out / "pictures").iterdir()) == sorted(p.split("/")[1] for p in rep["pictures"])
+
+
 @pytest.mark.parametrize("method", ["paper", "fast"])
 def test_no_silent_wrong_shape(report, method):
     a = report[0]["methods"][method]

@@ -56,6 +56,7 @@ __all__ = [
     "fig_timing",
     "fig_tubes",
     "overlay_panels",
+    "frame_overlay",
     "save_png",
     "select_detail_frames",
     "MAX_DETAIL_FRAMES",
@@ -946,7 +947,9 @@ def _frame_header(r: dict, mmpp) -> str:
     return "   ·   ".join(parts)
 
 
-def _overlay_for_frame(run: RunData, r: dict, path: Path) -> Path | None:
+def frame_overlay(run: RunData, r: dict, path: Path) -> Path | None:
+    """The PNG of frame record ``r`` of ``run`` (:func:`overlay_panels`: each camera's image, the backbone and the
+    truth reprojected), written to ``path``; None where none of the frame's images can be read."""
     fr = r["frame"]
     cams = list(run.session_meta.get("cameras") or (run.rig.names if run.rig else []))
     images = {}
@@ -1189,7 +1192,7 @@ def _overlay_figures(run: RunData, details: list, tmp: Path) -> dict:
     overlays = {}
     by = {r["frame"]: r for r in run.records}
     for f in details:
-        p = _overlay_for_frame(run, by[f], tmp / "frames" / f"{f:06d}.png")
+        p = frame_overlay(run, by[f], tmp / "frames" / f"{f:06d}.png")
         if p is not None:
             overlays[f] = f"frames/{p.name}"
     return overlays

@@ -23,8 +23,9 @@ at that point's depth (mm). A frame is
 Error statistics are over the reconstructed frames (ok and flagged), whatever
 their status. Each scene is one task of a Dask sweep (:mod:`rig.bench.sweep`): its
 frames' rows go to the sweep's journal (``sweep.jsonl``) as the scene finishes, so
-an interrupted bench resumes; at the end every row goes to ``frames.csv`` and the
-aggregates to ``summary.json``. A frame whose ground
+an interrupted bench resumes; at the end every row goes to ``frames.csv``, the
+aggregates to ``summary.json``, and pictures of each method's worst frames and of
+every silent wrong one to ``pictures/`` (:func:`write_pictures`). A frame whose ground
 truth cannot be used (its truth file missing, unreadable, of the wrong shape or
 not finite) keeps its row, unscored, with a ``note`` that names the file; the
 other frames are scored as usual.
@@ -33,6 +34,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 import sys
 import time
 from dataclasses import dataclass, replace
@@ -47,6 +49,7 @@ from rig.bench.compare import PEERS, method_status
 from rig.bench.cores import pin_worker
 from rig.bench.peers import prepare_peer
 from rig.bench.reconstruct import reconstruct_session
+from rig.bench.report import frame_overlay, load_run
 from rig.bench.render_cache import cached_session
 from rig.bench.sweep import Journal, Task, dask_client, require_all, run_sweep, task_digest
 from rig.progress import Progress
@@ -57,7 +60,8 @@ from twin import scenegen
 from twin.scene import load_scene
 
 __all__ = ["SILENT_WRONG_PX", "CLASS_KEYS", "thinnest_tube_px", "tube_px_class", "write_suite", "frame_footprint_mm", "score_run", "aggregate",
-           "run_suite", "scene_rows", "format_suite", "JSON_KEYS"]
+           "run_suite", "scene_rows", "format_suite", "JSON_KEYS",
+           "write_pictures"]
 
 #: A frame reported ok whose max error exceeds this many pixel footprints is a silent wrong shape.
 SILENT_WRONG_PX = 10.0
@@ -347,8 +351,29 @@ def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache
     report = {"suite": suite, "n": n, "seed": seed, "max_pixels": max_pixels, "selfcheck": bool(selfcheck), "methods": results,
               "classes": {m: _by_class([r for r in rows if r["method"] == m]) for m in runnable},
               "worst": _worst(rows)}
+    report["pictures"] = write_pictures(out_dir, report["worst"] + [r for r in rows if r["silent_wrong"]])
     write_json_atomic(out_dir / "summary.json", report)
     return report
+
+
+def write_pictures(out_dir: Path, rows: list) -> list:
+    """PNGs of the frames ``rows`` names (``method``, ``scene``, ``frame``), each from its run under ``out_dir / "runs"``:
+    ``out_dir/pictures/<method>-<scene>-f<frame>.png``, each camera's image with the backbone and the truth
+    reprojected (:func:`rig.bench.report.frame_overlay`). Returns their paths relative to ``out_dir``, each frame once.
+
+    The bench draws each method's worst frames and every silent wrong one: the frames to look at.
+    """
+    shutil.rmtree(out_dir / "pictures", ignore_errors=True)  # the bench's own: a re-run replaces them, as its runs
+    names = []
+    for r in rows:
+        name = f"{r['method']}-{r['scene']}-f{int(r['frame'])}.png"
+        if name in names:
+            continue
+        run = load_run(out_dir / "runs" / r["method"] / r["scene"])
+        rec = next((x for x in run.records if x["frame"] == int(r["frame"])), None)
+        if rec is not None and frame_overlay(run, rec, out_dir / "pictures" / name) is not None:
+            names.append(name)
+    return [f"pictures/{n}" for n in names]
 
 
 def _write_rows(path: Path, rows: list) -> None:

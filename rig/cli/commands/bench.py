@@ -48,7 +48,8 @@ def _run_suite(args) -> int:
         return 0
     print(widebench.format_suite(report))
     widebench.print_worst(report)
-    print(f"\nper-frame rows: {out / 'frames.csv'}; summary: {out / 'summary.json'}; runs: {out / 'runs'}")
+    print(f"\nper-frame rows: {out / 'frames.csv'}; summary: {out / 'summary.json'}; runs: {out / 'runs'}; "
+          f"pictures of the worst and silent frames: {out / 'pictures'}")
     return 0
 
 
