@@ -8,7 +8,9 @@ scored in pixel footprints. The bounds are the issue's goals for each method.
 from __future__ import annotations
 
 import csv
+import shutil
 
+import cv2
 import pytest
 
 from rig.bench import widebench
@@ -36,8 +38,6 @@ def test_rows_written_for_every_frame_and_method(report):
 
 def test_the_worst_frames_are_drawn_for_looking_at(report):
     # Each method's worst frames (by max error) as PNGs in OUT/pictures, read back with OpenCV as a user would.
-    import cv2
-
     rep, out = report
     assert rep["worst"]
     for w in rep["worst"]:
@@ -46,6 +46,16 @@ def test_the_worst_frames_are_drawn_for_looking_at(report):
         img = cv2.imread(str(out / name))
         assert img is not None and img.shape[0] > 100 and img.shape[1] > 100, name
     assert sorted(p.name for p in (out / "pictures").iterdir()) == sorted(p.split("/")[1] for p in rep["pictures"])
+
+
+def test_a_run_that_cannot_be_read_costs_its_picture_only(report, tmp_path, capsys):
+    rep, out = report
+    w = rep["worst"][0]
+    rows = [w, dict(w, scene="wide-21-99")]  # the second names a run that is not there
+    shutil.copytree(out / "runs", tmp_path / "runs")
+    assert widebench.write_pictures(tmp_path, rows) == [f"pictures/{w['method']}-{w['scene']}-f{w['frame']}.png"]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"{w['method']}-wide-21-99-f{w['frame']}.png: not drawn"), err
 
 
 @pytest.mark.parametrize("method", ["paper", "fast"])

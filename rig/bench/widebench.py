@@ -359,7 +359,8 @@ def run_suite(suite: str, n: int, seed: int, methods: list, out_dir: Path, cache
 def write_pictures(out_dir: Path, rows: list) -> list:
     """PNGs of the frames ``rows`` names (``method``, ``scene``, ``frame``), each from its run under ``out_dir / "runs"``:
     ``out_dir/pictures/<method>-<scene>-f<frame>.png``, each camera's image with the backbone and the truth
-    reprojected (:func:`rig.bench.report.frame_overlay`). Returns their paths relative to ``out_dir``, each frame once.
+    reprojected (:func:`rig.bench.report.frame_overlay`). Returns their paths relative to ``out_dir``, each frame once;
+    a frame whose run cannot be read is left out with a one-line note on stderr.
 
     The bench draws each method's worst frames and every silent wrong one: the frames to look at.
     """
@@ -369,9 +370,14 @@ def write_pictures(out_dir: Path, rows: list) -> list:
         name = f"{r['method']}-{r['scene']}-f{int(r['frame'])}.png"
         if name in names:
             continue
-        run = load_run(out_dir / "runs" / r["method"] / r["scene"])
-        rec = next((x for x in run.records if x["frame"] == int(r["frame"])), None)
-        if rec is not None and frame_overlay(run, rec, out_dir / "pictures" / name) is not None:
+        try:
+            run = load_run(out_dir / "runs" / r["method"] / r["scene"])
+            rec = next((x for x in run.records if x["frame"] == int(r["frame"])), None)
+            drawn = rec is not None and frame_overlay(run, rec, out_dir / "pictures" / name) is not None
+        except (OSError, ValueError) as exc:  # a run that cannot be read costs its picture, not the bench's summary
+            print(f"{name}: not drawn ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})", file=sys.stderr)
+            continue
+        if drawn:
             names.append(name)
     return [f"pictures/{n}" for n in names]
 
