@@ -68,6 +68,19 @@ def test_overlay_marks_reconstruction_and_truth(run_dir):
         assert close.sum() > 200, f"colour {rgb} hardly drawn"
 
 
+def test_a_header_wider_than_the_panels_is_drawn_smaller_not_cut(tmp_path):
+    # A failed frame's header (status, three errors with px, time) ran off the right edge of a 915 px wide picture.
+    from rig.bench.report import overlay_panels
+
+    img = np.full((120, 160), 128, np.uint8)
+    uv = np.array([[20.0, 60.0], [140.0, 60.0]])
+    header = "frame 2  ·  SUSPECT  ·  " + "  ·  ".join(f"error {k} 29.99 mm (77.8 px)" for k in range(2))
+    path = overlay_panels(tmp_path / "o.png", {"side": img}, {"side": uv}, {"side": uv}, header, view_width=320)
+    strip = np.asarray(Image.open(path).convert("L"))[:28]
+    assert strip[:, :-6].min() < 100  # the header is there
+    assert strip[:, -6:].min() > 200  # and ends before the edge
+
+
 def test_meshes_written_and_load_back(run_dir):
     mdir = run_dir / "meshes"
     for f in (0, 1):

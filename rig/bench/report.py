@@ -577,10 +577,13 @@ def _camera_row(img: np.ndarray, cam: str, ru, tu, view_width: int, aspect_range
 
 def _legend_strip(width: int, header: str, has_recon: bool, has_truth: bool) -> np.ndarray:
     """The strip on top of an overlay: ``header`` and the legend of the curves drawn (``width`` px wide, RGB)."""
-    font, small = _font(16), _font(14)
+    small = _font(14)
     head = Image.new("RGB", (width, 56), (255, 255, 255))
     d = ImageDraw.Draw(head)
-    d.text((6, 4), header, fill=(0, 0, 0), font=font)
+    size = 16  # smaller where the header would run off the strip (a failed frame's errors, status and time)
+    while size > 10 and d.textlength(header, font=_font(size)) > width - 12:
+        size -= 1
+    d.text((6, 4), header, fill=(0, 0, 0), font=_font(size))
     x = 6
     for rgbc, label, show in ((RECON_RGB, "reconstruction, reprojected through the calibration (o: tip)", has_recon),
                               (TRUTH_RGB, "ground truth as imaged (x: tip)", has_truth)):
