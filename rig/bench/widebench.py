@@ -365,11 +365,12 @@ def write_pictures(out_dir: Path, rows: list) -> list:
     The bench draws each method's worst frames and every silent wrong one: the frames to look at.
     """
     shutil.rmtree(out_dir / "pictures", ignore_errors=True)  # the bench's own: a re-run replaces them, as its runs
-    names = []
+    names, seen = [], set()
     for r in rows:
         name = f"{r['method']}-{r['scene']}-f{int(r['frame'])}.png"
-        if name in names:
+        if name in seen:  # a worst frame that is also silent, or one whose run could not be read: once
             continue
+        seen.add(name)
         try:
             run = load_run(out_dir / "runs" / r["method"] / r["scene"])
             rec = next((x for x in run.records if x["frame"] == int(r["frame"])), None)
