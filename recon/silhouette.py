@@ -279,7 +279,13 @@ def extract_silhouette(
     a1 = int(stats[largest, cv2.CC_STAT_AREA])
     if a1 < params.min_area_px:
         raise FrameError(f"no silhouette (largest region {a1} px < {params.min_area_px} px)", camera_name)
-    members = _members(labels, stats, largest, regions, attach_gap_px, params.min_area_px, group_of)
+    # An attached piece wider than a tube is clutter, not the rest of a tube (wide-8-38 frame 0).
+    wide_px = None if tube_radii_px is None else _ATTACH_WIDTH_FACTOR * float(max(tube_radii_px)) + 1.0
+
+    def members_of(main: int) -> list:
+        return _members(labels, stats, main, regions, attach_gap_px, params.min_area_px, group_of, wide_px)
+
+    members = members_of(largest)
     rest = [i for i in regions if i not in members]
     if rest:
         a2 = int(stats[rest[0], cv2.CC_STAT_AREA])
@@ -289,13 +295,15 @@ def extract_silhouette(
                 raise FrameError(f"two blobs of similar size ({a1} px and {a2} px)", camera_name)
             if at_base != largest:
                 largest = at_base
-                members = _members(labels, stats, largest, regions, attach_gap_px, params.min_area_px, group_of)
-    x0 = min(int(stats[i, 0]) for i in members)
-    y0 = min(int(stats[i, 1]) for i in members)
-    x1 = max(int(stats[i, 0] + stats[i, 2]) for i in members)
-    y1 = max(int(stats[i, 1] + stats[i, 3]) for i in members)
-    x, y, w, h = x0, y0, x1 - x0, y1 - y0
-    off = [b for b in _touched_borders(x, y, w, h, diff.shape, params.border_margin_px) if b not in params.allowed_borders]
+                members = members_of(largest)
+    (x, y, w, h), off = _extent(stats, members, diff.shape, params)
+    if off:
+        at_base = _off_base_robot(labels, stats, largest, regions, base_px, tube_radii_px, params.min_area_px, group_of)
+        if at_base is not None:
+            base_members = members_of(at_base)
+            base_extent, base_off = _extent(stats, base_members, diff.shape, params)
+            if not base_off:
+                largest, members, (x, y, w, h), off = at_base, base_members, base_extent, base_off
     if off:
         where = off[0] if len(off) == 1 else ", ".join(off[:-1]) + " and " + off[-1]
         raise FrameError(f"robot leaves the view at the {where} border{'s' if len(off) > 1 else ''}", camera_name)
@@ -310,6 +318,32 @@ def extract_silhouette(
     if close_px or params.fill_holes:
         region = _close_and_fill(region, (x, y, w, h), close_px, params.fill_holes, max_hole_radius_px)
     return region
+
+
+def _extent(stats, members, shape, params: SilhouetteParams) -> tuple:
+    """The bounding box ``(x, y, w, h)`` (px) of regions ``members`` and the borders it touches that the robot may not cross."""
+    x0 = min(int(stats[i, 0]) for i in members)
+    y0 = min(int(stats[i, 1]) for i in members)
+    x1 = max(int(stats[i, 0] + stats[i, 2]) for i in members)
+    y1 = max(int(stats[i, 1] + stats[i, 3]) for i in members)
+    box = (x0, y0, x1 - x0, y1 - y0)
+    return box, [b for b in _touched_borders(*box, shape, params.border_margin_px) if b not in params.allowed_borders]
+
+
+def _off_base_robot(labels, stats, largest: int, regions, base_px, tube_radii_px, min_area_px: int, binary=None):
+    """Where the largest region runs off the image away from the base the camera sees: the largest of ``regions``
+    (of at least ``min_area_px``) that reaches the base instead (None where the largest reaches it, or no other does).
+
+    The robot is joined to its base. A region that does not come near it and
+    runs off the image is light or clutter (a brightening across a plain
+    backdrop, wide-8-2 frame 2), not a robot leaving the view.
+    """
+    if base_px is None or _at_base(labels, (largest,), base_px, tube_radii_px, binary) is not None:
+        return None
+    for i in regions:
+        if i != largest and stats[i, cv2.CC_STAT_AREA] >= min_area_px and _at_base(labels, (i,), base_px, tube_radii_px, binary) is not None:
+            return i
+    return None
 
 
 def _hysteresis(diff: np.ndarray, strong: np.ndarray, low_threshold: float) -> np.ndarray:
@@ -343,13 +377,18 @@ def _group_pieces(binary: np.ndarray, labels: np.ndarray, stats: np.ndarray, tub
 
 # Regions, largest first, whose width is checked (the robot is among the largest).
 _WIDTH_CANDIDATES = 8
+# An attached piece's inscribed radius may exceed the outer tube's by half (a tube crossing itself,
+# blur and hysteresis at its rim) plus a pixel; clutter beyond the gap is wider.
+_ATTACH_WIDTH_FACTOR = 1.5
 
 
-def _members(labels, stats, main: int, regions, attach_gap_px, min_area_px: int, binary=None) -> list:
+def _members(labels, stats, main: int, regions, attach_gap_px, min_area_px: int, binary=None, max_half_width_px=None) -> list:
     """Region ``main`` and the pieces of the same tube beyond a stretch the threshold lost: every further region
-    of ``regions`` (as wide as a tube) within ``attach_gap_px`` of it joins it (the backbone bridges such gaps
-    in 3-D)."""
+    of ``regions`` (as wide as a tube, and no wider than ``max_half_width_px`` across its inscribed radius)
+    within ``attach_gap_px`` of it joins it (the backbone bridges such gaps in 3-D)."""
     others = [i for i in regions if i != main]
+    if max_half_width_px is not None:
+        others = [i for i in others if _half_width(labels, stats[i], i, binary) <= max_half_width_px]
     if attach_gap_px is None or not others:
         return [main]
     return [main] + _attached(labels, stats, main, others, attach_gap_px, min_area_px, binary)
