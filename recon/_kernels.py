@@ -50,13 +50,25 @@ def _add_line(d, frame, stack, coeff, cu, cv, ax, half, o, H, W):
             return False
         base = (cv - half) * W + c0
         stride = W
+    # The usual mean and 5 eigenbackgrounds as a constant count, which the compiler unrolls: ~10 % of the
+    # profiles' kernel, the same sums in the same order.
+    if k1 == 6:
+        _line_difference(d, frame, stack, coeff, base, stride, L, 6)
+    else:
+        _line_difference(d, frame, stack, coeff, base, stride, L, k1)
+    return True
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _line_difference(d, frame, stack, coeff, base, stride, L, k1):
+    """Add ``frame - background`` (gray levels) at the ``L`` flat pixel indices ``base + j stride`` to ``d[j]``,
+    the background summed over the ``k1`` columns of ``stack`` in order."""
     for j in range(L):
         p = base + j * stride
         bg = 0.0
         for c in range(k1):
             bg += stack[p, c] * coeff[c]
         d[j] += frame.flat[p] - bg
-    return True
 
 
 @njit(cache=True, nogil=True, inline="always")
