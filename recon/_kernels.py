@@ -28,7 +28,7 @@ _untilt_nb = njit(cache=True, nogil=True, inline="always")(distortion.untilt_xy)
 _undistort_step_nb = njit(cache=True, nogil=True, inline="always")(distortion.undistort_step)
 
 __all__ = ["profile_edges_nb", "profiles_at_seeds_nb", "profile_values_nb", "coarse_foreground_nb", "coarse_foreground_tiles_nb",
-           "bfs_path_nb", "rays_nb", "ridge_hits_nb", "near_any_nb", "spline_fit_nb", "spline_basis_nb", "spline_eval_nb", "spline_robust_nb", "frame_coefficients_nb",
+           "bfs_path_nb", "traced_path_nb", "rays_nb", "ridge_hits_nb", "near_any_nb", "spline_fit_nb", "spline_basis_nb", "spline_eval_nb", "spline_robust_nb", "frame_coefficients_nb",
            "frame_shift_nb", "tip_along_axis_nb", "project_nb", "running_rank_nb", "median_nb", "max_window_median_nb",
            "best_path_nb"]
 
@@ -458,6 +458,81 @@ def bfs_path_nb(mask, sy, sx):
         path[q, 1] = node - (node // w) * w
         node = pred[node]
     return path
+
+
+@njit(cache=True, nogil=True)
+def _ahead_region(mask, sx, sy, sw, sh, rx0, ry0, x0p, y0p, x1p, y1p, bx, by, ax0, ax1, margin, ahead):
+    """The flood-filled region (``mask == 2``, ``mask`` from ``(rx0, ry0)``) in its rectangle ``(sx, sy, sw, sh)``,
+    as a uint8 array of coarse px from ``(x0p, y0p)`` to ``(x1p, y1p)``; with ``ahead``, its pixels more than
+    ``margin`` (coarse px) behind the base ``(bx, by)`` along the image axis ``(ax0, ax1)`` dropped, unless
+    fewer than two would be left (see :func:`recon.subpixel._traced_path`)."""
+    region = np.zeros((y1p - y0p, x1p - x0p), np.uint8)
+    for y in range(sh):
+        for x in range(sw):
+            region[sy - y0p + y, sx - x0p + x] = mask[sy - ry0 + y, sx - rx0 + x] == 2
+    if not ahead:
+        return region
+    h, w = region.shape
+    behind = np.zeros((h, w), np.bool_)
+    left = 0
+    for y in range(h):
+        for x in range(w):
+            # (x - bx) a + (y - by) b in NumPy's order: the same comparison bit for bit.
+            behind[y, x] = (np.float64(x0p + x) - bx) * ax0 + (np.float64(y0p + y) - by) * ax1 < -margin
+            left += region[y, x] != 0 and not behind[y, x]
+    if left >= 2:
+        for y in range(h):
+            for x in range(w):
+                if behind[y, x]:
+                    region[y, x] = 0
+    return region
+
+
+@njit(cache=True, nogil=True)
+def traced_path_nb(mask, sx, sy, sw, sh, rx0, ry0, hc, wc, bx, by, ax0, ax1, margin, ahead):
+    """:func:`recon.subpixel._traced_path` in one call: the region, pooled 2x2, its pixel nearest the base
+    ``(bx, by)`` (coarse px; the first of equals in raster order) and the :func:`bfs_path_nb` from there.
+
+    Returns ``(path, g, region, x0p, y0p)`` as that function does: (n, 2) (y, x) cells of the grid pooled
+    ``g`` x ``g``, and the (uint8) region of coarse px from ``(x0p, y0p)``.
+    """
+    x0p, y0p = sx - (sx & 1), sy - (sy & 1)
+    x1p, y1p = min(wc, sx + sw + ((sx + sw) & 1)), min(hc, sy + sh + ((sy + sh) & 1))
+    region = _ahead_region(mask, sx, sy, sw, sh, rx0, ry0, x0p, y0p, x1p, y1p, bx, by, ax0, ax1, margin, ahead)
+    ph, pw = region.shape[0] // 2, region.shape[1] // 2
+    g = 2
+    pooled = _pooled(region) if ph and pw else region  # a region one cell thin is left as it is (at g = 2)
+    if not np.any(pooled):
+        # A degenerate (tiny) region: no pooling.
+        g, x0p, y0p = 1, sx, sy
+        region = _ahead_region(mask, sx, sy, sw, sh, rx0, ry0, sx, sy, sx + sw, sy + sh, bx, by, ax0, ax1, margin,
+                               False)
+        pooled = region
+    best = np.inf
+    ky, kx = -1, -1
+    for y in range(pooled.shape[0]):
+        for x in range(pooled.shape[1]):
+            if pooled[y, x]:
+                a = (x + 0.5) * g + x0p - 0.5 - bx
+                b = (y + 0.5) * g + y0p - 0.5 - by
+                e = a * a + b * b
+                if e < best or ky < 0:
+                    best, ky, kx = e, y, x
+    if ky < 0:
+        raise ValueError("attempt to get argmin of an empty sequence")  # as np.argmin on the empty region
+    return bfs_path_nb(pooled, ky, kx), g, region, x0p, y0p
+
+
+@njit(cache=True, nogil=True)
+def _pooled(region):
+    """``region`` (h, w) uint8 pooled 2x2 (a cell is set where any of its four is), odd last rows and columns left out."""
+    ph, pw = region.shape[0] // 2, region.shape[1] // 2
+    pooled = np.empty((ph, pw), np.uint8)
+    for y in range(ph):
+        for x in range(pw):
+            pooled[y, x] = (region[2 * y, 2 * x] | region[2 * y + 1, 2 * x] | region[2 * y, 2 * x + 1]
+                            | region[2 * y + 1, 2 * x + 1])
+    return pooled
 
 
 @njit(cache=True, nogil=True)

@@ -805,6 +805,29 @@ def test_path_and_neighbour_kernels_agree_with_their_oracles():
         np.testing.assert_array_equal(_near(pts, visited, 4.0), O.near(pts, visited, 4.0))
 
 
+def test_traced_path_agrees_with_its_oracle():
+    """The coarse path through a flood-filled region (pooled, started nearest the base, cut behind it) is the
+    oracle's bit for bit: random regions from one pixel up, odd edges, bases in and outside them."""
+    from recon.subpixel import _traced_path
+
+    rng = np.random.default_rng(14)
+    for _ in range(400):
+        h, w = rng.integers(1, 14, 2)
+        mask = (rng.random((h, w)) < 0.5).astype(np.uint8) * 2
+        ys, xs = np.nonzero(mask == 2)
+        if ys.size == 0:
+            continue
+        origin = (int(rng.integers(0, 5)), int(rng.integers(0, 5)))
+        rect = (int(xs.min()) + origin[0], int(ys.min()) + origin[1], int(np.ptp(xs)) + 1, int(np.ptp(ys)) + 1)
+        shape = (origin[1] + h + int(rng.integers(0, 2)), origin[0] + w + int(rng.integers(0, 2)))
+        base = (float(rng.normal(rect[0], 3)), float(rng.normal(rect[1], 3)))
+        ahead = None if rng.random() < 0.3 else (rng.normal(size=2) / 1.4, float(rng.uniform(0, 3)))
+        got, want = _traced_path(mask, rect, origin, shape, base, ahead), O.traced_path(mask, rect, origin, shape, base, ahead)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[2], want[2])
+        assert got[2].dtype == want[2].dtype and got[1] == want[1] and got[3:] == want[3:]
+
+
 def test_spline_kernels_agree_with_their_oracles():
     """Weighted 3D fits (the backbone's), robust 2D fits with outliers (a view's centres), values, tangents."""
     rng = np.random.default_rng(13)
