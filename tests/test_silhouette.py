@@ -140,3 +140,31 @@ def test_only_regions_as_wide_as_a_tube():
     d[20:29, 40:70] = 0.0
     with pytest.raises(FrameError, match=r"^side: no silhouette \(largest region 300 px, but no region as wide as a tube"):
         extract_silhouette(d, SilhouetteParams(min_area_px=100), "side", tube_radii_px=(6.9, 4.3))
+
+
+def test_a_region_running_off_the_image_away_from_the_base_is_not_the_robot():
+    """Light brightening one side of a plain backdrop (wide-8-2 frame 2) makes the largest region, and it runs
+    off the image: where the camera sees the base, the region joined to the base is the robot. Without the
+    base, or where the largest region reaches it, the frame is refused as before."""
+    d = blank()
+    d[20:29, 10:70] = 1.0  # the robot, from its base at (10, 24): 540 px
+    d[40:100, 130:160] = 1.0  # light at the right border: 1800 px
+    kw = dict(tube_radii_px=(6.9, 4.3))
+    sil = extract_silhouette(d, SilhouetteParams(min_area_px=100), base_px=(10.0, 24.0), **kw)
+    assert sil[20:29, 10:70].all() and not sil[60:120, 130:].any()
+    for base in (None, (140.0, 90.0)):
+        with pytest.raises(FrameError, match=r"^side: robot leaves the view at the right border$"):
+            extract_silhouette(d, SilhouetteParams(min_area_px=100), "side", base_px=base, **kw)
+
+
+def test_a_piece_wider_than_a_tube_beyond_a_gap_is_not_the_rest_of_the_tube():
+    """Pieces within ``attach_gap_px`` of the robot join it (a tube beyond a stretch the threshold lost), but
+    not a blob wider than the tube: clutter that runs off the image (wide-8-38 frame 0, 53 px below the robot)
+    would make the robot "leave the view". A piece of the tube's own width still joins."""
+    d = blank()
+    d[20:29, 10:70] = 1.0  # the robot, 540 px
+    d[90:120, 20:34] = 1.0  # a blob 61 px below it, 14 px wide, to the bottom border: 420 px
+    d[20:29, 80:100] = 1.0  # the tube beyond a 10 px gap
+    kw = dict(tube_radii_px=(3.0, 2.0), attach_gap_px=70.0)
+    sil = extract_silhouette(d, SilhouetteParams(min_area_px=100, ambiguity_ratio=10.0), "side", **kw)
+    assert sil[20:29, 10:70].all() and sil[20:29, 80:100].all() and not sil[90:].any()
