@@ -14,7 +14,7 @@ import pytest
 
 from recon.camera import Camera
 from recon.rigcal import RigCalibration
-from recon.selfcheck import SelfCheckParams, check_backbone, fit_lighting, foreground_roi, prepare_selfcheck
+from recon.selfcheck import SelfCheckParams, _sees, check_backbone, fit_lighting, foreground_roi, prepare_selfcheck
 
 N_BACKGROUND = 6
 FRAME = 9  # inner tube 45 mm out of the outer one: both tubes well visible
@@ -94,6 +94,27 @@ def test_a_backbone_short_of_the_joints_length_is_flagged_where_the_views_cannot
     assert not longer.ok and "px (pixel footprints)" in longer.reason, longer.reason
     with pytest.raises(ValueError, match="expected robot length"):
         check_backbone(model, images, short, rendered.radii, expected_length_mm=float("nan"))
+
+
+def test_a_backbone_longer_than_the_joints_is_flagged_where_a_view_does_not_see_the_base(rendered):
+    """Where a view does not see the base, the straight chord from the base to the backbone's first point
+    stands for robot no view sees, and is never longer than it: a backbone reaching beyond the joints' length
+    is too long whatever the base (wide-21-1 frame 0 of the paper method, its tip folded back along the views'
+    lines of sight). One that falls short is not judged in footprints there (the robot may bend out of view)."""
+    from recon.selfcheck import _length_mismatch
+
+    truth = rendered.truth
+    axis = (truth[5] - truth[0]) / np.linalg.norm(truth[5] - truth[0])
+    base = truth[0] - 400.0 * axis  # far beyond every view's border
+    rig = RigCalibration(rendered.rig.cameras, base_point_world_mm=base, insertion_axis_world=axis)
+    assert not all(_sees(rig[n], base) for n in rig.names)
+    length_mm = 400.0 + float(rendered.s_mm[-1])
+    fp_mm = np.mean([rig[c].mm_per_pixel_at(truth[-1]) for c in rig.names])
+    assert (_length_mismatch(rig, truth, length_mm)[1] or 0.0) < 1.0  # None where the 5 mm vertices cut a bend short
+    frac, over_px = _length_mismatch(rig, truth, length_mm - 15 * fp_mm)  # the backbone 15 footprints too long
+    assert over_px == pytest.approx(15.0, abs=1.0) and over_px > SelfCheckParams().max_length_mismatch_px
+    assert frac < SelfCheckParams().max_length_mismatch_fraction  # the fraction alone lets it pass
+    assert _length_mismatch(rig, truth, length_mm + 15 * fp_mm)[1] is None  # short: the chord may be the reason
 
 
 def test_a_backbone_shifted_5_px_in_one_view_is_flagged(model, rendered):
