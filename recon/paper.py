@@ -326,7 +326,10 @@ def prepare_paper(rig: RigCalibration, background_frames: dict, params: PaperPar
         mmpp = cam.mm_per_pixel_at(rig.base_point_world_mm)
         radii[name] = (params.outer_tube_radius_mm / mmpp, params.inner_tube_radius_mm / mmpp)
         attach[name] = params.backbone.max_gap_mm / mmpp
-        behind = [b for b in base_borders(cam, rig.base_point_world_mm) if b not in params.silhouette.allowed_borders]
+        # A base on the border, or inside it by less than the tube's radius, has the silhouette touch it too
+        # (wide-3-14's side view: the base at u = 0, the robot entering there; every frame refused as leaving).
+        near = params.silhouette.border_margin_px + radii[name][0] + 1.0
+        behind = [b for b in base_borders(cam, rig.base_point_world_mm, near) if b not in params.silhouette.allowed_borders]
         base[name] = _seen_base_px(cam, rig.base_point_world_mm)
         sil[name] = replace(params.silhouette, allowed_borders=params.silhouette.allowed_borders + tuple(behind))
         cut[name] = (
@@ -798,25 +801,30 @@ def _seen_base_px(camera, base_point_world_mm):
     return uv[0]
 
 
-def base_borders(camera, base_point_world_mm) -> list:
-    """Image borders the robot base lies beyond, as ``camera`` sees it (none if it is in the image).
+def base_borders(camera, base_point_world_mm, margin_px: float = 0.0) -> list:
+    """Image borders the robot base lies beyond (or within ``margin_px`` of), as ``camera`` sees it.
 
     When the camera does not see where the tubes leave the actuation unit, the
     robot enters the image across the border on that side: its silhouette
-    touching that border is expected, not the robot leaving the view.
+    touching that border is expected, not the robot leaving the view. So it is
+    where the base lies on the border or just inside it: the tube's silhouette
+    is as wide as the tube there.
 
     Parameters
     ----------
     camera : recon.camera.Camera
     base_point_world_mm : (3,) array_like
         The robot base (world frame, mm).
+    margin_px : float, optional
+        A base within this many px inside a border counts for that border too
+        (0: beyond the image's outer pixel edges only).
 
     Returns
     -------
     list of str
         Among ``"left"``, ``"right"``, ``"top"``, ``"bottom"`` (in :data:`recon.silhouette.BORDERS`
         order): where the base's projection, with or without distortion, lies beyond the
-        image's outer pixel edges; empty when it is inside or behind the camera.
+        image's outer pixel edges (less ``margin_px``); empty when it is well inside or behind the camera.
     """
     p = np.asarray(base_point_world_mm, float).reshape(1, 3)
     pc = camera.world_to_camera(p)[0]
@@ -829,7 +837,9 @@ def base_borders(camera, base_point_world_mm) -> list:
     out = set()
     for u, v in (ideal, uv[0]):
         if np.isfinite(u) and np.isfinite(v):
-            for b, beyond in (("left", u < -0.5), ("right", u > camera.width - 0.5), ("top", v < -0.5), ("bottom", v > camera.height - 0.5)):
+            m = float(margin_px)
+            for b, beyond in (("left", u < m - 0.5), ("right", u > camera.width - 0.5 - m), ("top", v < m - 0.5),
+                              ("bottom", v > camera.height - 0.5 - m)):
                 if beyond:
                     out.add(b)
     return [b for b in BORDERS if b in out]

@@ -200,6 +200,26 @@ def test_base_outside_the_view(setup):
     assert rec.points_world_mm[0, 0] < -5.0  # base first: from the image border
 
 
+def test_base_on_the_border(setup):
+    """A base 1 px inside a camera's border: the silhouette touches that border where the robot enters (it is as
+    wide as the tube there), which is not the robot leaving the view (wide-3-14's side view, the base at u = 0,
+    refused every frame; wide-8-44's top view, 4 px inside)."""
+    rig, model, params, rng = setup
+    from recon.paper import base_borders
+
+    name, cam = sorted(rig.cameras.items())[0]
+    xs = np.arange(0.0, -40.0, -0.005)
+    u = cam.project(np.c_[xs, np.zeros((len(xs), 2))])[0][:, 0]
+    k = int(np.flatnonzero(np.minimum(u, cam.width - 1.0 - u) <= 1.0)[0])
+    base = np.array([xs[k], 0.0, 0.0])
+    side = "left" if u[k] < cam.width / 2 else "right"
+    assert base_borders(cam, base) == []
+    assert base_borders(cam, base, margin_px=3.0) == [side]
+    rec, truth = _paper_robot_from(rig, base, params, rng)
+    seen = truth[truth[:, 0] > -5.0]  # what both cameras see
+    assert backbone_errors(rec.points_world_mm, seen)["mean_error_mm"] <= float(rec.voxel_size_mm.max())
+
+
 def _paper_robot_from(rig, base_mm, params, rng):
     """The paper's robot drawn from a base at ``base_mm`` (world, mm; insertion along +x) and reconstructed on the
     rig's cameras: ``(reconstruction, truth backbone (n, 3) mm)``."""
