@@ -78,9 +78,9 @@ def test_fast_reconstructs_95_percent(report):
     assert a["reconstructed_fraction"] >= 0.95, a
 
 
-@pytest.mark.xfail(strict=True, reason="issue 13, open: 6 of 12 frames (tubes of 3.2-3.4 px, now within the paper "
-                   "method's 3 px limit); wide-21-1 is refused on every frame ('side: robot leaves the view at the left "
-                   "border': the base is on that border, u = -0.2), wide-21-3 frames 0 and 1 as 'in pieces the backbone cannot join'")
+@pytest.mark.xfail(strict=True, reason="issue 13, open: 10 of 12 frames reconstructed (83 %): wide-21-3 frames 0 and 1 "
+                   "are refused as 'in pieces the backbone cannot join' (a faint tube of 3.2-3.4 px the silhouette breaks up); "
+                   "wide-21-1, its base on the side view's border, is reconstructed since round 41")
 def test_paper_within_a_voxel(report):
     a = report[0]["methods"]["paper"]
     assert a["reconstructed_fraction"] >= 0.9, a
