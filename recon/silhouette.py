@@ -262,28 +262,28 @@ def extract_silhouette(
         # camera jitter leaves in the difference of a robot-free frame are
         # thin lines, however long or contrasted.
         need = params.min_width_fraction * float(min(tube_radii_px))
-        regions, widths = [], []
-        for i in order[:_WIDTH_CANDIDATES]:
-            widths.append(_half_width(labels, stats[i], i, group_of))
-            if widths[-1] >= need:
-                regions.append(i)
+        widths = {i: _half_width(labels, stats[i], i, group_of) for i in order[:_WIDTH_CANDIDATES]}
+        regions = [i for i, w in widths.items() if w >= need]
         if not regions:
             raise FrameError(
                 f"no silhouette (largest region {a0} px, but no region as wide as a tube: "
-                f"the widest is {2 * max(widths):.1f} px across, the thinner tube {2 * float(min(tube_radii_px)):.1f} px)",
+                f"the widest is {2 * max(widths.values()):.1f} px across, the thinner tube {2 * float(min(tube_radii_px)):.1f} px)",
                 camera_name,
             )
     else:
-        regions = order
+        regions, widths = order, {}
     largest = regions[0]
     a1 = int(stats[largest, cv2.CC_STAT_AREA])
     if a1 < params.min_area_px:
         raise FrameError(f"no silhouette (largest region {a1} px < {params.min_area_px} px)", camera_name)
     # An attached piece wider than a tube is clutter, not the rest of a tube (wide-8-38 frame 0).
-    wide_px = None if tube_radii_px is None else _ATTACH_WIDTH_FACTOR * float(max(tube_radii_px)) + 1.0
+    narrow = regions
+    if tube_radii_px is not None:
+        wide_px = _ATTACH_WIDTH_FACTOR * float(max(tube_radii_px)) + 1.0
+        narrow = [i for i in regions if (widths[i] if i in widths else _half_width(labels, stats[i], i, group_of)) <= wide_px]
 
     def members_of(main: int) -> list:
-        return _members(labels, stats, main, regions, attach_gap_px, params.min_area_px, group_of, wide_px)
+        return _members(labels, stats, main, [main] + [i for i in narrow if i != main], attach_gap_px, params.min_area_px, group_of)
 
     members = members_of(largest)
     rest = [i for i in regions if i not in members]
@@ -382,13 +382,11 @@ _WIDTH_CANDIDATES = 8
 _ATTACH_WIDTH_FACTOR = 1.5
 
 
-def _members(labels, stats, main: int, regions, attach_gap_px, min_area_px: int, binary=None, max_half_width_px=None) -> list:
+def _members(labels, stats, main: int, regions, attach_gap_px, min_area_px: int, binary=None) -> list:
     """Region ``main`` and the pieces of the same tube beyond a stretch the threshold lost: every further region
-    of ``regions`` (as wide as a tube, and no wider than ``max_half_width_px`` across its inscribed radius)
-    within ``attach_gap_px`` of it joins it (the backbone bridges such gaps in 3-D)."""
+    of ``regions`` (as wide as a tube, no wider than one) within ``attach_gap_px`` of it joins it (the backbone
+    bridges such gaps in 3-D)."""
     others = [i for i in regions if i != main]
-    if max_half_width_px is not None:
-        others = [i for i in others if _half_width(labels, stats[i], i, binary) <= max_half_width_px]
     if attach_gap_px is None or not others:
         return [main]
     return [main] + _attached(labels, stats, main, others, attach_gap_px, min_area_px, binary)
