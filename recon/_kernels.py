@@ -493,8 +493,29 @@ def traced_path_nb(mask, sx, sy, sw, sh, rx0, ry0, hc, wc, bx, by, ax0, ax1, mar
     """:func:`recon.subpixel._traced_path` in one call: the region, pooled 2x2, its pixel nearest the base
     ``(bx, by)`` (coarse px; the first of equals in raster order) and the :func:`bfs_path_nb` from there.
 
-    Returns ``(path, g, region, x0p, y0p)`` as that function does: (n, 2) (y, x) cells of the grid pooled
-    ``g`` x ``g``, and the (uint8) region of coarse px from ``(x0p, y0p)``.
+    Parameters
+    ----------
+    mask : 2-D int array
+        The flood fill (``2``: the robot's region), its pixel (0, 0) at coarse px ``(rx0, ry0)``.
+    sx, sy, sw, sh : int
+        The region's rectangle in the coarse image (px).
+    rx0, ry0 : int
+        Where ``mask`` starts in the coarse image (px).
+    hc, wc : int
+        The coarse image's height and width (px).
+    bx, by : float
+        The robot base in the coarse image (px).
+    ax0, ax1, margin : float
+        The insertion axis's image direction (unit) and how far behind the base (coarse px) the region is
+        kept, where ``ahead``.
+    ahead : bool
+        Drop the region's pixels more than ``margin`` behind the base (see :func:`_ahead_region`).
+
+    Returns
+    -------
+    tuple
+        ``(path, g, region, x0p, y0p)`` as :func:`recon.subpixel._traced_path` gives it: (n, 2) (y, x) cells
+        of the grid pooled ``g`` x ``g``, and the (uint8) region of coarse px from ``(x0p, y0p)``.
     """
     x0p, y0p = sx - (sx & 1), sy - (sy & 1)
     x1p, y1p = min(wc, sx + sw + ((sx + sw) & 1)), min(hc, sy + sh + ((sy + sh) & 1))
