@@ -42,7 +42,8 @@ from hypothesis import HealthCheck, settings  # noqa: E402
 settings.register_profile("ci", derandomize=True, deadline=None, max_examples=25,
                           suppress_health_check=[HealthCheck.too_slow], print_blob=True)
 settings.register_profile("long", deadline=None, max_examples=500, suppress_health_check=[HealthCheck.too_slow])
-settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
+PROFILE = os.environ.get("HYPOTHESIS_PROFILE", "ci")
+settings.load_profile(PROFILE)
 
 
 def _ci_draws_without_local_constants() -> None:
@@ -52,7 +53,7 @@ def _ci_draws_without_local_constants() -> None:
     ``sys.modules`` at the time of the draw. Which of ours those are depends on the test
     files a pytest-xdist worker ran before, so a "derandomized" test drew other examples
     alone than in the suite: test_fast_method_accurate_inside_the_envelope failed on its
-    own (a plain-backdrop view with 1.9 px of jitter) and passed in the full run. The long
+    own (a gradient-backdrop view with about 1.9 px of jitter) and passed in the full run. The long
     profile keeps them: it is for searching, not for a repeatable CI.
     """
     try:
@@ -65,7 +66,7 @@ def _ci_draws_without_local_constants() -> None:
         providers._get_local_constants = lambda: empty
 
 
-if os.environ.get("HYPOTHESIS_PROFILE", "ci") == "ci":
+if PROFILE == "ci":
     _ci_draws_without_local_constants()
 
 
